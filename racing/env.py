@@ -1,0 +1,309 @@
+"""The Gymnasium environment: a DeepRacer car on a track, driven one 1/15 s action at a time."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from racing.actions import ActionSpec
+from racing.car import REPORTED_POINT_AHEAD_M, CarSim, Pose
+from racing.params import RaceObject, build_params
+from racing.rules import RaceRules, RaceTracker, Status
+from racing.sensors import CameraSensor, ground_for, validate_sensors
+from racing.simtrace import TraceRow
+from racing.track import Track, TrackError
+from racing.tracks import TrackCatalog
+
+ROUND_ROBIN_ADVANCE = 0.05
+"""DeepRacer moves each episode's start this share of the track further on."""
+CAMERA_RESOLUTION_M = 0.005
+VIEW_RESOLUTION_M = 0.01
+REWARD_LIMIT = 1e5
+
+RewardFunction = Callable[[dict], float]
+
+
+class RewardValueError(ValueError):
+    """The reward function returned something that is not a usable number."""
+
+
+def progress_reward(params: dict) -> float:
+    """The default reward: stay near the centre line, all wheels on the track."""
+    if not params["all_wheels_on_track"] or params["is_offtrack"]:
+        return 1e-3
+    half = params["track_width"] / 2
+    return float(max(1e-3, 1.0 - (params["distance_from_center"] / half) ** 2))
+
+
+class RacingEnv(gym.Env):
+    """A 1/18-scale DeepRacer car racing on a DeepRacer track.
+
+    **Configuration** (keyword arguments): ``track`` (a :class:`Track` or a catalogue id),
+    ``direction`` (``'native'``, ``'ccw'`` or ``'cw'``), ``action_space`` (DeepRacer's
+    ``model_metadata.json`` form: a list of ``{steering_angle, speed}`` for discrete actions,
+    ``{steering_angle: {low, high}, speed: {low, high}}`` for continuous ones; ``None`` is
+    DeepRacer's default 10 discrete actions), ``sensors`` (``["FRONT_FACING_CAMERA"]`` or
+    ``["STEREO_CAMERAS"]``), ``reward_function`` (a callable taking DeepRacer's ``params`` dict),
+    ``rules`` (:class:`RaceRules`: laps, resets, penalties, limits), ``start``
+    (``'round_robin'``: each episode starts 5 % of the track further on, as DeepRacer training;
+    ``'start_line'``), ``alternate_direction`` (flip the direction every episode),
+    ``render_mode`` (``'rgb_array'``), ``render_view`` (``'chase'`` 320×240 or ``'top_down'``).
+
+    **Action space**: ``Discrete(n)`` over the listed actions, or
+    ``Box([steer_low, speed_low], [steer_high, speed_high])`` (degrees, m/s). Executed actions are
+    clipped to ±30° and 0.1-4 m/s. An action outside the space raises ``ActionSpaceError``.
+
+    **Observation space**: the camera image, ``Box(0, 255, (120, 160, C), uint8)``, grayscale,
+    ``C`` = 1 for the front camera and 2 for the stereo pair (left, right).
+
+    **Step**: 1/15 s of simulated time (DeepRacer's 15 Hz), 4 physics sub-steps.
+
+    **Reward**: ``reward_function(params)`` as a float each step (see :mod:`racing.params`).
+    NaN, ±inf or a value outside ±1e5 raises :class:`RewardValueError` naming the step.
+    Steps spent in a reset penalty are not rewarded.
+
+    **Termination**: the last lap complete, off track (all four wheels off), crashed,
+    reversed (progress falls 15 steps in a row) or immobilized (≤ 0.3 mm per step for 15
+    steps), unless ``rules.resets`` forgives it with a penalty and a respawn. **Truncation**:
+    ``rules.max_steps`` steps or ``rules.time_limit_s`` simulated seconds (status ``time_up``).
+
+    **Info**: ``status`` (DeepRacer's episode status), ``progress``, ``lap`` (current lap),
+    ``laps`` (finished :class:`LapRecord` s), ``lap_finished``, ``reset`` and ``penalty_s``,
+    ``params`` (this step's params) and ``trace`` (a :class:`TraceRow`).
+
+    **Determinism**: the same seed and actions give the same observations and rewards.
+
+    **Version history**: v0 (first release).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 15}
+
+    def __init__(
+        self,
+        track: Track | str = "racecraft_summit",
+        *,
+        direction: str = "native",
+        action_space: list | tuple | dict | None = None,
+        sensors: Sequence[str] = ("FRONT_FACING_CAMERA",),
+        reward_function: RewardFunction | None = None,
+        rules: RaceRules | None = None,
+        start: str = "round_robin",
+        alternate_direction: bool = False,
+        render_mode: str | None = None,
+        render_view: str = "chase",
+        track_dirs: Sequence[str] = (),
+        substeps: int = 4,
+    ) -> None:
+        super().__init__()
+        if isinstance(track, str):
+            track = TrackCatalog(list(track_dirs)).load(track)
+        elif not isinstance(track, Track):
+            raise TrackError(f"track must be a Track or a track id, not {type(track).__name__}")
+        if start not in ("round_robin", "start_line"):
+            raise ValueError("start must be 'round_robin' or 'start_line'")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', not {render_mode!r}")
+        if render_view not in ("chase", "top_down"):
+            raise ValueError("render_view must be 'chase' or 'top_down'")
+        self.track = track.in_direction(direction)
+        self._tracks = {self.track.is_reversed: self.track}
+        self.actions = ActionSpec.parse(action_space)
+        self.action_space = self.actions.gym_space
+        self.sensors = validate_sensors(list(sensors))
+        self.reward_function = reward_function or progress_reward
+        self.rules = rules or RaceRules()
+        self.start_mode = start
+        self.alternate_direction = alternate_direction
+        self.render_mode = render_mode
+        self.render_view = render_view
+
+        ground = ground_for(self.track, resolution=CAMERA_RESOLUTION_M, rgb=False)
+        self.camera = CameraSensor(ground, self.sensors[0])
+        self.observation_space = spaces.Box(0, 255, self.camera.shape, dtype=np.uint8)
+        self.sim = CarSim(substeps=substeps)
+        self.objects: tuple[RaceObject, ...] = ()
+        self.tracker = RaceTracker(self.rules, self.track.length, self.track.closed)
+        self.episode = -1
+        self.pose = Pose(0.0, 0.0, 0.0)
+        self._view = None
+        self._hint: int | None = None
+        self._point = (0.0, 0.0)
+        self._last_action: tuple[float, float] = (0.0, 0.0)
+        self.params: dict = {}
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = options or {}
+        self.episode += 1
+        if self.alternate_direction and self.track.closed and self.episode > 0:
+            self._set_track(not self.track.is_reversed)
+        if "start_progress" in options:
+            start_s = float(options["start_progress"]) / 100.0 * self.track.length
+        elif self.start_mode == "round_robin":
+            start_s = (self.episode * ROUND_ROBIN_ADVANCE * self.track.length) % self.track.length
+        else:
+            start_s = 0.0
+        self._place_at(start_s, offset=float(options.get("offset", 0.0)))
+        loc = self.track.locate(*self._point)
+        self._hint = loc.segment
+        self.tracker = RaceTracker(self.rules, self.track.length, self.track.closed)
+        self.tracker.start(loc.s)
+        self.sim_time = 0.0
+        self._last_action = (0.0, 0.0)
+        self.params = build_params(
+            track=self.track,
+            pose=self.pose,
+            loc=loc,
+            wheels_on_track=self._wheels_on_track(),
+            steering_angle=0.0,
+            speed=0.0,
+            progress=0.0,
+            steps=0,
+            objects=self.objects,
+        )
+        obs = self.camera.observe(self.pose, self.objects)
+        info = {"status": Status.PREPARE.value, "progress": 0.0, "lap": 1, "laps": [],
+                "start_s": loc.s, "params": self.params}
+        return obs, info
+
+    def step(self, action):
+        if self.episode < 0:
+            raise RuntimeError("call reset() before step()")
+        steering, speed = self.actions.decode(action)
+        self._last_action = (steering, speed)
+        old_point = self._point
+        self.pose = self.sim.step(steering, speed)
+        self._point = self.pose.point_ahead(REPORTED_POINT_AHEAD_M)
+        loc = self.track.locate(self._point[0], self._point[1], self._hint)
+        self._hint = loc.segment
+        wheels = self._wheels_on_track()
+        moved = math.hypot(self._point[0] - old_point[0], self._point[1] - old_point[1])
+        judged = self.tracker.update(
+            s=loc.s, dt=self.sim.dt, moved_m=moved, wheels_on_track=wheels
+        )
+        self.sim_time = self.tracker.sim_time
+        self.params = build_params(
+            track=self.track,
+            pose=self.pose,
+            loc=loc,
+            wheels_on_track=wheels,
+            steering_angle=steering,
+            speed=speed,
+            progress=self.tracker.progress,
+            steps=self.tracker.steps,
+            is_crashed=judged.status is Status.CRASHED,
+            sim_time=self.sim_time,
+            objects=self.objects,
+        )
+        reward = self._reward(self.params)
+        if judged.reset:
+            self._respawn(loc)
+        obs = self.camera.observe(self.pose, self.objects)
+        done = judged.done
+        trace = TraceRow(
+            episode=self.episode,
+            steps=self.tracker.steps,
+            x=self._point[0] if not judged.reset else loc.x,
+            y=self._point[1] if not judged.reset else loc.y,
+            yaw=self.params["heading"],
+            steer=steering,
+            throttle=speed,
+            action=(
+                int(action)
+                if self.actions.kind == "discrete"
+                else (round(steering, 4), round(speed, 4))
+            ),
+            reward=reward,
+            done=done or judged.truncated,
+            all_wheels_on_track=self.params["all_wheels_on_track"],
+            progress=self.params["progress"],
+            closest_waypoint=self._closest_waypoint(loc),
+            track_len=self.track.length,
+            tstamp=self.sim_time,
+            episode_status=judged.status.value,
+            pause_duration=judged.penalty_s,
+            obstacle_crash_counter=self.tracker.current_lap.crashes,
+            wall_clock=time.time(),
+        )
+        info = {
+            "status": judged.status.value,
+            "progress": self.tracker.progress,
+            "lap": self.tracker.lap_number,
+            "laps": self.tracker.laps,
+            "lap_finished": judged.lap_finished,
+            "reset": judged.reset,
+            "penalty_s": judged.penalty_s,
+            "params": self.params,
+            "trace": trace,
+        }
+        return obs, reward, done, judged.truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self._view is None:
+            from racing.views import ChaseView, TopDownView
+
+            ground = ground_for(self.track, resolution=VIEW_RESOLUTION_M, rgb=True)
+            self._view = ChaseView(ground) if self.render_view == "chase" else TopDownView(ground)
+        return self._view.render(self.pose, self.objects)
+
+    def close(self) -> None:
+        self.sim.close()
+        super().close()
+
+    # ------------------------------------------------------------------ internals
+    def _set_track(self, reverse: bool) -> None:
+        track = self._tracks.get(reverse)
+        if track is None:
+            track = self.track.reversed()
+            self._tracks[reverse] = track
+        self.track = track
+
+    def _place_at(self, s: float, offset: float = 0.0) -> None:
+        """Put the car at rest with its reported point on the centre line at ``s``."""
+        px, py = self.track.point_at(s, offset)
+        yaw = self.track.heading_at(s)
+        x = px - REPORTED_POINT_AHEAD_M * math.cos(yaw)
+        y = py - REPORTED_POINT_AHEAD_M * math.sin(yaw)
+        self.sim.place(x, y, yaw)
+        self.pose = Pose(x, y, yaw)
+        self._point = (px, py)
+
+    def _respawn(self, loc) -> None:
+        """After a forgiven failure: back on the nearer lane at the last progress, at rest."""
+        s = loc.s
+        lane = self.track.width_at(loc) / 4
+        self._place_at(s, offset=lane if loc.left else -lane)
+        new_loc = self.track.locate(*self._point)
+        self._hint = new_loc.segment
+        self.tracker.respawned_at(new_loc.s)
+
+    def _wheels_on_track(self) -> int:
+        xs, ys = self.pose.wheel_contacts()
+        return int(np.count_nonzero(self.track.on_track(np.asarray(xs), np.asarray(ys))))
+
+    def _closest_waypoint(self, loc) -> int:
+        behind, ahead = self.track.closest_waypoints(loc)
+        return behind if loc.fraction < 0.5 else ahead
+
+    def _reward(self, params: dict) -> float:
+        value = self.reward_function(params)
+        try:
+            reward = float(value)
+        except (TypeError, ValueError) as exc:
+            raise RewardValueError(
+                f"step {params['steps']}: the reward function returned {value!r}, not a number"
+            ) from exc
+        if not math.isfinite(reward) or abs(reward) > REWARD_LIMIT:
+            raise RewardValueError(
+                f"step {params['steps']}: the reward function returned {reward}, outside "
+                f"[-{REWARD_LIMIT:g}, {REWARD_LIMIT:g}]"
+            )
+        return reward

@@ -1,0 +1,269 @@
+"""What the car sees: DeepRacer's front camera (mono or stereo), fast.
+
+The track is flat, so a camera's view of the ground is a homography of the top-down ground
+texture: one ``cv2.warpPerspective`` per frame instead of rendering a 3-D scene. Rows above the
+horizon show a fixed backdrop. Objects (boxes, bot cars) will be drawn over the warped ground
+once race types with objects exist: :meth:`PinholeCamera.render` takes the list already.
+
+:class:`ReferenceCamera` renders the same view through PyBullet's ``getCameraImage``; it is far
+slower and exists to check the fast path and to measure it against.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pybullet as pb
+
+from racing.car import Pose
+from racing.texture import GroundTexture, render_ground
+from racing.track import Track
+
+CAMERA_WIDTH = 160
+CAMERA_HEIGHT = 120
+CAMERA_HFOV_DEG = 120.0
+"""DeepRacer's wide-angle front camera: 120° across, 160×120 grayscale, 15 fps."""
+CAMERA_X_M = 0.20
+"""Camera position ahead of the car's origin (rear-axle middle), metres."""
+CAMERA_HEIGHT_M = 0.12
+CAMERA_PITCH_DEG = 20.0
+"""Camera tilt below the horizontal, degrees."""
+STEREO_BASELINE_M = 0.06
+"""Distance between the two lenses of the stereo camera, metres."""
+
+SENSOR_CAMERA = "FRONT_FACING_CAMERA"
+SENSOR_STEREO = "STEREO_CAMERAS"
+SENSOR_LIDAR = "LIDAR"
+SENSOR_SECTOR_LIDAR = "SECTOR_LIDAR"
+CAMERA_SENSORS = (SENSOR_CAMERA, SENSOR_STEREO)
+LIDAR_SENSORS = (SENSOR_LIDAR, SENSOR_SECTOR_LIDAR, "DISCRETIZED_SECTOR_LIDAR")
+SUPPORTED_SENSORS = (SENSOR_CAMERA, SENSOR_STEREO)
+
+
+class SensorError(ValueError):
+    """An unsupported or badly combined sensor configuration."""
+
+
+def validate_sensors(sensors: list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """Check a DeepRacer ``sensor`` list: exactly one camera, at most one LIDAR."""
+    sensors = tuple(s.upper() for s in sensors)
+    cameras = [s for s in sensors if s in CAMERA_SENSORS]
+    lidars = [s for s in sensors if s in LIDAR_SENSORS]
+    unknown = [s for s in sensors if s not in CAMERA_SENSORS + LIDAR_SENSORS]
+    if unknown:
+        raise SensorError(f"unknown sensor {unknown[0]!r}; known: {CAMERA_SENSORS + LIDAR_SENSORS}")
+    if len(cameras) != 1:
+        raise SensorError("choose exactly one camera: FRONT_FACING_CAMERA or STEREO_CAMERAS")
+    if len(lidars) > 1:
+        raise SensorError("choose at most one LIDAR sensor")
+    if lidars:
+        raise SensorError(f"{lidars[0]} is not available yet; use a camera on its own")
+    return sensors
+
+
+@dataclass(frozen=True)
+class CameraMount:
+    """Where a camera sits on the car and how it looks."""
+
+    forward: float = CAMERA_X_M
+    left: float = 0.0
+    height: float = CAMERA_HEIGHT_M
+    pitch_deg: float = CAMERA_PITCH_DEG
+    hfov_deg: float = CAMERA_HFOV_DEG
+    width: int = CAMERA_WIDTH
+    height_px: int = CAMERA_HEIGHT
+
+
+def intrinsics(mount: CameraMount) -> np.ndarray:
+    f = (mount.width / 2) / math.tan(math.radians(mount.hfov_deg) / 2)
+    return np.array(
+        [[f, 0, (mount.width - 1) / 2], [0, f, (mount.height_px - 1) / 2], [0, 0, 1]],
+        dtype=np.float64,
+    )
+
+
+def camera_frame(
+    pose: Pose, mount: CameraMount
+) -> tuple[np.ndarray, np.ndarray]:
+    """World position ``C`` and world→camera rotation ``R`` (OpenCV axes: x right, y down,
+    z forward) of a camera on a car at ``pose``. Only the car's yaw turns the camera."""
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    pos = np.array(
+        [
+            pose.x + c * mount.forward - s * mount.left,
+            pose.y + s * mount.forward + c * mount.left,
+            mount.height,
+        ]
+    )
+    pitch = math.radians(mount.pitch_deg)
+    fwd = np.array([c * math.cos(pitch), s * math.cos(pitch), -math.sin(pitch)])
+    right = np.array([s, -c, 0.0])
+    down = np.cross(fwd, right)
+    return pos, np.vstack([right, down, fwd])
+
+
+def _backdrop(height: int, width: int, channels: int) -> np.ndarray:
+    """A plain wall with a lighter band at the top, what sits behind the track."""
+    rows = np.linspace(150, 105, height, dtype=np.float32)[:, None]
+    img = np.repeat(rows, width, axis=1)
+    if channels == 1:
+        return img.astype(np.uint8)
+    tint = np.array([0.92, 0.96, 1.0], dtype=np.float32)
+    return (img[..., None] * tint).astype(np.uint8)
+
+
+class PinholeCamera:
+    """A camera on the car that sees the flat ground texture through a homography."""
+
+    def __init__(self, ground: GroundTexture, mount: CameraMount | None = None) -> None:
+        self.ground = ground
+        self.mount = mount or CameraMount()
+        self.K = intrinsics(self.mount)
+        self._k_inv = np.linalg.inv(self.K)
+        channels = 1 if ground.image.ndim == 2 else 3
+        h, w = self.mount.height_px, self.mount.width
+        # The horizon row is fixed because the camera only yaws with the car.
+        pitch = math.radians(self.mount.pitch_deg)
+        horizon = self.K[1, 2] - self.K[1, 1] * math.tan(pitch)
+        self.first_ground_row = min(h, max(0, int(math.floor(horizon)) + 2))
+        self._frame = _backdrop(h, w, channels)
+        self._shift = np.array(
+            [[1, 0, 0], [0, 1, self.first_ground_row], [0, 0, 1]], dtype=np.float64
+        )
+        self._world_to_tex = ground.world_to_pixel
+        self._border = ground.floor_value
+
+    def ground_map(self, pose: Pose) -> np.ndarray:
+        """3×3 matrix from output pixels (below the horizon) to ground-texture pixels."""
+        pos, rot = camera_frame(pose, self.mount)
+        rays = rot.T @ self._k_inv  # pixel -> world ray direction
+        cz = pos[2]
+        to_ground = np.array([[-cz, 0, pos[0]], [0, -cz, pos[1]], [0, 0, 1.0]])
+        return self._world_to_tex @ to_ground @ rays @ self._shift
+
+    def render(self, pose: Pose, objects: tuple = ()) -> np.ndarray:
+        """The camera image at ``pose``: ``(H, W)`` uint8 for grayscale ground, else RGB."""
+        frame = self._frame.copy()
+        row0 = self.first_ground_row
+        if row0 < self.mount.height_px:
+            cv2.warpPerspective(
+                self.ground.image,
+                self.ground_map(pose),
+                (self.mount.width, self.mount.height_px - row0),
+                dst=frame[row0:],
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                borderMode=cv2.BORDER_CONSTANT,
+                borderValue=self._border,
+            )
+        return frame
+
+    def project(self, pose: Pose, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points ``(N, 3)`` to pixels ``(N, 2)`` and their depth in front of the lens."""
+        pos, rot = camera_frame(pose, self.mount)
+        cam = (np.asarray(points, dtype=np.float64) - pos) @ rot.T
+        depth = cam[:, 2]
+        uvw = cam @ self.K.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pix = uvw[:, :2] / uvw[:, 2:3]
+        return pix, depth
+
+
+class CameraSensor:
+    """DeepRacer's camera observation: mono ``(120, 160, 1)`` or stereo ``(120, 160, 2)``."""
+
+    def __init__(self, ground_gray: GroundTexture, kind: str = SENSOR_CAMERA) -> None:
+        if ground_gray.image.ndim != 2:
+            raise SensorError("the camera sensor needs a grayscale ground texture")
+        self.kind = kind
+        if kind == SENSOR_STEREO:
+            half = STEREO_BASELINE_M / 2
+            self.cameras = [
+                PinholeCamera(ground_gray, CameraMount(left=half)),
+                PinholeCamera(ground_gray, CameraMount(left=-half)),
+            ]
+        elif kind == SENSOR_CAMERA:
+            self.cameras = [PinholeCamera(ground_gray)]
+        else:
+            raise SensorError(f"{kind!r} is not a camera")
+        self.shape = (CAMERA_HEIGHT, CAMERA_WIDTH, len(self.cameras))
+
+    def observe(self, pose: Pose, objects: tuple = ()) -> np.ndarray:
+        if len(self.cameras) == 1:
+            return self.cameras[0].render(pose, objects)[..., None]
+        return np.stack([cam.render(pose, objects) for cam in self.cameras], axis=-1)
+
+
+_ground_cache: dict[tuple[int, float, bool], GroundTexture] = {}
+
+
+def ground_for(track: Track, *, resolution: float, rgb: bool) -> GroundTexture:
+    """The ground texture of a track, painted once per process and shared by every env."""
+    key = (id(track._rows), resolution, rgb)  # both directions share the same rows
+    tex = _ground_cache.get(key)
+    if tex is None:
+        if len(_ground_cache) > 16:
+            _ground_cache.clear()
+        tex = render_ground(track, resolution=resolution, rgb=rgb)
+        _ground_cache[key] = tex
+    return tex
+
+
+class ReferenceCamera:
+    """The front camera rendered by PyBullet's TinyRenderer (``getCameraImage``).
+
+    It puts a textured quad showing the same ground texture into the car's PyBullet world and
+    renders the camera view from it: slow, and used only to check and benchmark the fast path.
+    """
+
+    def __init__(self, client, ground_rgb: GroundTexture, mount: CameraMount | None = None):
+        self.client = client
+        self.mount = mount or CameraMount()
+        self._dir = tempfile.mkdtemp(prefix="racecraft-ref-")
+        image = ground_rgb.image
+        h, w = image.shape[:2]
+        scale = min(1.0, 4096 / max(h, w))
+        if scale < 1.0:
+            image = cv2.resize(image, (int(w * scale), int(h * scale)), interpolation=cv2.INTER_AREA)
+        png = os.path.join(self._dir, "ground.png")
+        cv2.imwrite(png, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        x0, y1, res = ground_rgb.x0, ground_rgb.y1, ground_rgb.resolution
+        x1, y0 = x0 + w * res, y1 - h * res
+        obj = os.path.join(self._dir, "ground.obj")
+        with open(obj, "w") as fh:
+            fh.write(
+                f"v {x0} {y0} 0\nv {x1} {y0} 0\nv {x1} {y1} 0\nv {x0} {y1} 0\n"
+                "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\n"
+                "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n"
+            )
+        visual = client.createVisualShape(pb.GEOM_MESH, fileName=obj, meshScale=[1, 1, 1])
+        body = client.createMultiBody(0, -1, visual, [0, 0, 0.0005])
+        texture = client.loadTexture(png)
+        client.changeVisualShape(body, -1, textureUniqueId=texture, rgbaColor=[1, 1, 1, 1])
+        k = intrinsics(self.mount)
+        vfov = math.degrees(2 * math.atan((self.mount.height_px / 2) / k[1, 1]))
+        self._projection = client.computeProjectionMatrixFOV(
+            vfov, self.mount.width / self.mount.height_px, 0.01, 60.0
+        )
+
+    def render(self, pose: Pose) -> np.ndarray:
+        """The grayscale camera image ``(H, W)`` uint8 at ``pose``."""
+        pos, rot = camera_frame(pose, self.mount)
+        fwd, down = rot[2], rot[1]
+        view = self.client.computeViewMatrix(pos.tolist(), (pos + fwd).tolist(), (-down).tolist())
+        _, _, rgba, _, _ = self.client.getCameraImage(
+            self.mount.width,
+            self.mount.height_px,
+            view,
+            self._projection,
+            renderer=pb.ER_TINY_RENDERER,
+            lightDirection=[0, 0, 1],
+            shadow=0,
+            flags=pb.ER_NO_SEGMENTATION_MASK,
+        )
+        rgb = np.asarray(rgba, dtype=np.uint8).reshape(self.mount.height_px, self.mount.width, 4)
+        return cv2.cvtColor(rgb[..., :3], cv2.COLOR_RGB2GRAY)

@@ -1,0 +1,77 @@
+"""Sim-trace rows: DeepRacer's per-step log, which the community's log-analysis tools read.
+
+The 19 columns and printf formats of SimApp's current ``StepMetrics`` (spec §8.3). Files are
+written with a header row of the column names, as ``training-simtrace/<n>-iteration.csv``.
+"""
+
+from __future__ import annotations
+
+import io
+from typing import NamedTuple
+
+SIMTRACE_COLUMNS = (
+    "episode",
+    "steps",
+    "X",
+    "Y",
+    "yaw",
+    "steer",
+    "throttle",
+    "action",
+    "reward",
+    "done",
+    "all_wheels_on_track",
+    "progress",
+    "closest_waypoint",
+    "track_len",
+    "tstamp",
+    "episode_status",
+    "pause_duration",
+    "obstacle_crash_counter",
+    "wall_clock",
+)
+
+
+class TraceRow(NamedTuple):
+    episode: int
+    steps: int
+    x: float
+    y: float
+    yaw: float
+    steer: float
+    throttle: float
+    action: int | tuple[float, float]
+    reward: float
+    done: bool
+    all_wheels_on_track: bool
+    progress: float
+    closest_waypoint: int
+    track_len: float
+    tstamp: float
+    episode_status: str
+    pause_duration: float
+    obstacle_crash_counter: int
+    wall_clock: float
+
+    def format(self) -> str:
+        """The row as SimApp writes it (its printf formats, comma-separated)."""
+        if isinstance(self.action, tuple):
+            action = f"[{self.action[0]:.2f} {self.action[1]:.2f}]"
+        else:
+            action = str(self.action)
+        return (
+            f"{self.episode:d},{self.steps:d},{self.x:.4f},{self.y:.4f},{self.yaw:.4f},"
+            f"{self.steer:.2f},{self.throttle:.2f},{action},{self.reward:.4f},{self.done},"
+            f"{self.all_wheels_on_track},{self.progress:.4f},{self.closest_waypoint:d},"
+            f"{self.track_len:.2f},{self.tstamp:.3f},{self.episode_status},"
+            f"{self.pause_duration:.2f},{self.obstacle_crash_counter:d},{self.wall_clock:.4f}"
+        )
+
+
+def to_csv(rows: list[TraceRow]) -> str:
+    """A sim-trace CSV file: the header row, then one line per step."""
+    out = io.StringIO()
+    out.write(",".join(SIMTRACE_COLUMNS) + "\n")
+    for row in rows:
+        out.write(row.format() + "\n")
+    return out.getvalue()
