@@ -111,6 +111,21 @@ def wheel_speeds(steering_rad: float, speed: float) -> list[float]:
     return [w * outer_front, w * inner_front, w * outer_rear, w * inner_rear]
 
 
+class _RawClient:
+    """The few PyBullet calls made every step, bound to one physics client id."""
+
+    def __init__(self, client_id: int) -> None:
+        from functools import partial
+
+        for name in (
+            "setJointMotorControlArray",
+            "stepSimulation",
+            "getBasePositionAndOrientation",
+            "getBaseVelocity",
+        ):
+            setattr(self, name, partial(getattr(pb, name), physicsClientId=client_id))
+
+
 class CarSim:
     """One PyBullet world with one car. Call :meth:`place`, then :meth:`step` once per action."""
 
@@ -128,6 +143,8 @@ class CarSim:
         self.ground = c.createMultiBody(0, plane)
         c.changeDynamics(self.ground, -1, lateralFriction=FRICTION)
         self.car = self._build_car()
+        # Bound methods of the raw client skip BulletClient's per-call attribute lookup.
+        self._pb = _RawClient(c._client)
         self._steer = 0.0
 
     def _build_car(self) -> int:
@@ -192,7 +209,7 @@ class CarSim:
 
     def step(self, steering_deg: float, speed: float) -> Pose:
         """Drive one control step (1/15 s) with the commanded steering angle and speed."""
-        c = self.client
+        c = self._pb
         steer = math.radians(steering_deg)
         # The servo slews at a finite rate, so steering is not instantaneous.
         max_delta = STEERING_RATE_RAD_S * self.dt
@@ -216,7 +233,7 @@ class CarSim:
         return self.pose()
 
     def pose(self) -> Pose:
-        c = self.client
+        c = self._pb
         (cx, cy, _), orn = c.getBasePositionAndOrientation(self.car)
         (vx, vy, _), (_, _, wz) = c.getBaseVelocity(self.car)
         # yaw from the quaternion (x, y, z, w), ignoring roll and pitch

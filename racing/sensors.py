@@ -101,10 +101,15 @@ def camera_frame(
         ]
     )
     pitch = math.radians(mount.pitch_deg)
-    fwd = np.array([c * math.cos(pitch), s * math.cos(pitch), -math.sin(pitch)])
-    right = np.array([s, -c, 0.0])
-    down = np.cross(fwd, right)
-    return pos, np.vstack([right, down, fwd])
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    rot = np.array(
+        [
+            [s, -c, 0.0],  # right
+            [-sp * c, -sp * s, -cp],  # down = forward × right
+            [c * cp, s * cp, -sp],  # forward
+        ]
+    )
+    return pos, rot
 
 
 def _backdrop(height: int, width: int, channels: int) -> np.ndarray:

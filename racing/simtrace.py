@@ -7,6 +7,7 @@ written with a header row of the column names, as ``training-simtrace/<n>-iterat
 from __future__ import annotations
 
 import io
+import time
 from typing import NamedTuple
 
 SIMTRACE_COLUMNS = (
@@ -53,8 +54,14 @@ class TraceRow(NamedTuple):
     obstacle_crash_counter: int
     wall_clock: float
 
+    def stamped(self) -> TraceRow:
+        """The row with ``wall_clock`` set to now (the env leaves it 0 to stay deterministic)."""
+        return self._replace(wall_clock=time.time())
+
     def format(self) -> str:
-        """The row as SimApp writes it (its printf formats, comma-separated)."""
+        """The row as SimApp writes it (its printf formats, comma-separated); an unstamped
+        ``wall_clock`` is written as the time of writing."""
+        wall = self.wall_clock if self.wall_clock > 0 else time.time()
         if isinstance(self.action, tuple):
             action = f"[{self.action[0]:.2f} {self.action[1]:.2f}]"
         else:
@@ -64,7 +71,7 @@ class TraceRow(NamedTuple):
             f"{self.steer:.2f},{self.throttle:.2f},{action},{self.reward:.4f},{self.done},"
             f"{self.all_wheels_on_track},{self.progress:.4f},{self.closest_waypoint:d},"
             f"{self.track_len:.2f},{self.tstamp:.3f},{self.episode_status},"
-            f"{self.pause_duration:.2f},{self.obstacle_crash_counter:d},{self.wall_clock:.4f}"
+            f"{self.pause_duration:.2f},{self.obstacle_crash_counter:d},{wall:.4f}"
         )
 
 

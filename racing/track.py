@@ -307,7 +307,7 @@ class Track:
             fraction=frac,
             s=s if s < self.length else s - self.length,
             distance=math.sqrt(d2),
-            left=cross > 0.0,
+            left=bool(cross > 0.0),
             x=x,
             y=y,
         )

@@ -19,7 +19,7 @@ import numpy as np
 from racing.track import Track, TrackError
 
 BUILTIN_DIR = Path(__file__).resolve().parent / "tracks"
-TRACK_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,63}$")
+TRACK_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,63}\Z")
 MAX_TRACK_FILE_BYTES = 2_000_000
 """Largest track file accepted for import (the biggest DeepRacer file is about 30 kB)."""
 
@@ -140,7 +140,7 @@ def import_track(
         raise TrackError(f"track file is {len(data)} bytes; the limit is {MAX_TRACK_FILE_BYTES}")
     try:
         array = np.load(io.BytesIO(data), allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
+    except (ValueError, OSError, EOFError, MemoryError) as exc:
         raise TrackError(f"not a NumPy .npy array ({exc})") from exc
     track = Track.from_array(array, track_id=track_id, name=name or track_id)
     dest = Path(dest_dir)

@@ -1,0 +1,82 @@
+"""Env steps per second with the camera observation, fast path against PyBullet rendering.
+
+Both run in this one process, on the same track, with the same random actions and the default
+reward. The reference renders every observation with PyBullet's getCameraImage (TinyRenderer)
+instead of the homography camera; everything else is the same env.
+
+    .venv/bin/python bench/bench_env.py [--track ID_OR_PATH] [--steps N]
+
+Last line: ``steps_per_s=… reference_steps_per_s=… ratio=…`` (targets: ≥ 2,000 and ≥ 15×).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from racing.env import RacingEnv  # noqa: E402
+from racing.track import Track  # noqa: E402
+
+cv2.setNumThreads(1)
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "tracks"
+
+
+def load_track(name: str) -> Track | str:
+    path = Path(name)
+    if path.suffix == ".npy" and path.exists():
+        return Track.from_file(path)
+    shared = SHARED / f"{name}.npy"
+    if shared.exists():
+        return Track.from_file(shared)
+    return name  # a catalogue id
+
+
+def measure(env: RacingEnv, actions: np.ndarray) -> tuple[float, int]:
+    env.reset(seed=0)
+    episodes = 1
+    start = time.perf_counter()
+    for a in actions:
+        _, _, terminated, truncated, _ = env.step(int(a))
+        if terminated or truncated:
+            env.reset()
+            episodes += 1
+    return len(actions) / (time.perf_counter() - start), episodes
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--track", default="reinvent_base")
+    parser.add_argument("--steps", type=int, default=20_000)
+    parser.add_argument("--reference-steps", type=int, default=600)
+    args = parser.parse_args()
+    track = load_track(args.track)
+    rng = np.random.default_rng(0)
+    # Mostly straight-ish actions so episodes last a while, as during real training.
+    actions = rng.choice(10, size=args.steps, p=[0.05, 0.05, 0.1, 0.1, 0.15, 0.15, 0.1, 0.1, 0.1, 0.1])
+
+    fast_env = RacingEnv(track, start="round_robin")
+    measure(fast_env, actions[:500])  # warm-up: textures, caches
+    fast, fast_eps = measure(fast_env, actions)
+    ref_env = RacingEnv(track, start="round_robin", camera_backend="pybullet")
+    measure(ref_env, actions[:20])
+    ref, ref_eps = measure(ref_env, actions[: args.reference_steps])
+    fast_env.close()
+    ref_env.close()
+
+    name = track if isinstance(track, str) else track.track_id
+    print(f"track: {name}   observation: 160x120 grayscale front camera   one process")
+    print(f"{'path':<34}{'steps':>8}{'episodes':>10}{'steps/s':>10}")
+    print(f"{'fast (homography camera)':<34}{args.steps:>8}{fast_eps:>10}{fast:>10.0f}")
+    print(f"{'reference (pybullet getCameraImage)':<34}{args.reference_steps:>8}{ref_eps:>10}{ref:>10.0f}")
+    print(f"steps_per_s={fast:.0f} reference_steps_per_s={ref:.0f} ratio={fast / ref:.1f}")
+
+
+if __name__ == "__main__":
+    main()
