@@ -59,7 +59,9 @@ def main() -> None:
     track = load_track(args.track)
     rng = np.random.default_rng(0)
     # Mostly straight-ish actions so episodes last a while, as during real training.
-    actions = rng.choice(10, size=args.steps, p=[0.05, 0.05, 0.1, 0.1, 0.15, 0.15, 0.1, 0.1, 0.1, 0.1])
+    actions = rng.choice(
+        10, size=args.steps, p=[0.05, 0.05, 0.1, 0.1, 0.15, 0.15, 0.1, 0.1, 0.1, 0.1]
+    )
 
     fast_env = RacingEnv(track, start="round_robin")
     measure(fast_env, actions[:500])  # warm-up: textures, caches
@@ -74,7 +76,9 @@ def main() -> None:
     print(f"track: {name}   observation: 160x120 grayscale front camera   one process")
     print(f"{'path':<34}{'steps':>8}{'episodes':>10}{'steps/s':>10}")
     print(f"{'fast (homography camera)':<34}{args.steps:>8}{fast_eps:>10}{fast:>10.0f}")
-    print(f"{'reference (pybullet getCameraImage)':<34}{args.reference_steps:>8}{ref_eps:>10}{ref:>10.0f}")
+    print(
+        f"{'reference (pybullet getCameraImage)':<34}{args.reference_steps:>8}{ref_eps:>10}{ref:>10.0f}"
+    )
     print(f"steps_per_s={fast:.0f} reference_steps_per_s={ref:.0f} ratio={fast / ref:.1f}")
 
 

@@ -151,6 +151,8 @@ class RacingEnv(gym.Env):
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode. ``options`` may set ``start_progress`` (percent of the lap),
+        ``offset`` (metres left of the centre line) and ``heading_offset_deg``."""
         super().reset(seed=seed)
         options = options or {}
         if seed is not None:
@@ -166,7 +168,11 @@ class RacingEnv(gym.Env):
             start_s = (self.episode * ROUND_ROBIN_ADVANCE * self.track.length) % self.track.length
         else:
             start_s = 0.0
-        self._place_at(start_s, offset=float(options.get("offset", 0.0)))
+        self._place_at(
+            start_s,
+            offset=float(options.get("offset", 0.0)),
+            yaw_offset=math.radians(float(options.get("heading_offset_deg", 0.0))),
+        )
         loc = self.track.locate(*self._point)
         self._hint = loc.segment
         self.tracker = RaceTracker(self.rules, self.track.length, self.track.closed)
@@ -185,8 +191,14 @@ class RacingEnv(gym.Env):
             objects=self.objects,
         )
         obs = self.camera.observe(self.pose, self.objects)
-        info = {"status": Status.PREPARE.value, "progress": 0.0, "lap": 1, "laps": [],
-                "start_s": loc.s, "params": self.params}
+        info = {
+            "status": Status.PREPARE.value,
+            "progress": 0.0,
+            "lap": 1,
+            "laps": [],
+            "start_s": loc.s,
+            "params": self.params,
+        }
         return obs, info
 
     def step(self, action):
@@ -201,9 +213,7 @@ class RacingEnv(gym.Env):
         self._hint = loc.segment
         wheels = self._wheels_on_track()
         moved = math.hypot(self._point[0] - old_point[0], self._point[1] - old_point[1])
-        judged = self.tracker.update(
-            s=loc.s, dt=self.sim.dt, moved_m=moved, wheels_on_track=wheels
-        )
+        judged = self.tracker.update(s=loc.s, dt=self.sim.dt, moved_m=moved, wheels_on_track=wheels)
         self.sim_time = self.tracker.sim_time
         self.params = build_params(
             track=self.track,
@@ -283,10 +293,11 @@ class RacingEnv(gym.Env):
             self._tracks[reverse] = track
         self.track = track
 
-    def _place_at(self, s: float, offset: float = 0.0) -> None:
-        """Put the car at rest with its reported point on the centre line at ``s``."""
+    def _place_at(self, s: float, offset: float = 0.0, yaw_offset: float = 0.0) -> None:
+        """Put the car at rest with its reported point ``offset`` metres left of the centre line
+        at ``s``, facing along the track turned by ``yaw_offset`` radians."""
         px, py = self.track.point_at(s, offset)
-        yaw = self.track.heading_at(s)
+        yaw = self.track.heading_at(s) + yaw_offset
         x = px - REPORTED_POINT_AHEAD_M * math.cos(yaw)
         y = py - REPORTED_POINT_AHEAD_M * math.sin(yaw)
         self.sim.place(x, y, yaw)

@@ -228,7 +228,7 @@ class RaceTracker:
             return self._end(status, truncated=False)
         if self.steps >= self.rules.max_steps or (
             self.rules.time_limit_s is not None
-            and self.sim_time - self.episode_start_time >= self.rules.time_limit_s
+            and self.sim_time - self.episode_start_time >= self.rules.time_limit_s - 1e-9
         ):
             return self._end(Status.TIME_UP, truncated=True)
         return Judgement(status, False, False, False, 0.0, False)

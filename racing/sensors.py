@@ -87,9 +87,7 @@ def intrinsics(mount: CameraMount) -> np.ndarray:
     )
 
 
-def camera_frame(
-    pose: Pose, mount: CameraMount
-) -> tuple[np.ndarray, np.ndarray]:
+def camera_frame(pose: Pose, mount: CameraMount) -> tuple[np.ndarray, np.ndarray]:
     """World position ``C`` and world→camera rotation ``R`` (OpenCV axes: x right, y down,
     z forward) of a camera on a car at ``pose``. Only the car's yaw turns the camera."""
     c, s = math.cos(pose.yaw), math.sin(pose.yaw)
@@ -233,7 +231,9 @@ class ReferenceCamera:
         h, w = image.shape[:2]
         scale = min(1.0, 4096 / max(h, w))
         if scale < 1.0:
-            image = cv2.resize(image, (int(w * scale), int(h * scale)), interpolation=cv2.INTER_AREA)
+            image = cv2.resize(
+                image, (int(w * scale), int(h * scale)), interpolation=cv2.INTER_AREA
+            )
         png = os.path.join(self._dir, "ground.png")
         cv2.imwrite(png, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
         x0, y1, res = ground_rgb.x0, ground_rgb.y1, ground_rgb.resolution

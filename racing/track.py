@@ -223,9 +223,8 @@ class Track:
                 raise TrackError(f"the {label} line crosses itself")
         if inner_line.intersects(outer_line):
             raise TrackError("the inner and outer borders cross each other")
-        if self.closed:
-            if not Polygon(self.outer).contains(Polygon(self.inner)):
-                raise TrackError("the inner border does not lie inside the outer border")
+        if self.closed and not Polygon(self.outer).contains(Polygon(self.inner)):
+            raise TrackError("the inner border does not lie inside the outer border")
         if self.length <= 0:
             raise TrackError("the centre line has no length")
 
@@ -321,7 +320,9 @@ class Track:
 
     def width_at(self, loc: Location) -> float:
         nxt = (loc.segment + 1) % self.num_waypoints
-        return float(self.widths[loc.segment] * (1 - loc.fraction) + self.widths[nxt] * loc.fraction)
+        return float(
+            self.widths[loc.segment] * (1 - loc.fraction) + self.widths[nxt] * loc.fraction
+        )
 
     def heading_at(self, s: float) -> float:
         """Direction of the centre line at distance ``s`` from the start, radians."""
@@ -359,7 +360,11 @@ class Track:
         k = np.abs(turn) / np.maximum(span, 1e-6)
         width = max(1, int(round(0.5 / max(float(np.median(seg)), 1e-3))))
         kernel = np.ones(width) / width
-        padded = np.concatenate([k[-width:], k, k[:width]]) if self.closed else np.pad(k, width, mode="edge")
+        padded = (
+            np.concatenate([k[-width:], k, k[:width]])
+            if self.closed
+            else np.pad(k, width, mode="edge")
+        )
         smooth = np.convolve(padded, kernel, mode="same")[width:-width]
         out = np.zeros(self.num_waypoints)
         out[: len(smooth)] = smooth

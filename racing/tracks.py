@@ -138,6 +138,8 @@ def import_track(
         )
     if len(data) > MAX_TRACK_FILE_BYTES:
         raise TrackError(f"track file is {len(data)} bytes; the limit is {MAX_TRACK_FILE_BYTES}")
+    if not data.startswith(b"\x93NUMPY"):  # np.load would also open .npz/zip archives
+        raise TrackError("not a NumPy .npy array (the file does not start with the .npy magic)")
     try:
         array = np.load(io.BytesIO(data), allow_pickle=False)
     except (ValueError, OSError, EOFError, MemoryError) as exc:

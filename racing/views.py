@@ -114,15 +114,24 @@ class TopDownView:
         h, w = ground_rgb.image.shape[:2]
         self.scale = width_px / w
         self.base = cv2.resize(
-            ground_rgb.image, (width_px, max(1, int(round(h * self.scale)))), interpolation=cv2.INTER_AREA
+            ground_rgb.image,
+            (width_px, max(1, int(round(h * self.scale)))),
+            interpolation=cv2.INTER_AREA,
         )
         self.ground = ground_rgb
 
     def render(self, pose: Pose, objects: tuple[RaceObject, ...] = ()) -> np.ndarray:
         img = self.base.copy()
         for obj in objects:
-            self._draw_footprint(img, obj.x, obj.y, obj.heading, obj.length, obj.width,
-                                 OBJECT_RGB.get(obj.kind, OBJECT_RGB["box"]))
+            self._draw_footprint(
+                img,
+                obj.x,
+                obj.y,
+                obj.heading,
+                obj.length,
+                obj.width,
+                OBJECT_RGB.get(obj.kind, OBJECT_RGB["box"]),
+            )
         cx = pose.x + (CHASSIS_CENTRE_X + 0.02) * math.cos(pose.yaw)
         cy = pose.y + (CHASSIS_CENTRE_X + 0.02) * math.sin(pose.yaw)
         self._draw_footprint(img, cx, cy, pose.yaw, CAR_LENGTH_M * 1.6, CAR_WIDTH_M * 1.6, CAR_RGB)
@@ -132,7 +141,9 @@ class TopDownView:
         c, s = math.cos(yaw), math.sin(yaw)
         local = np.array([[0.5, 0.5], [0.5, -0.5], [-0.5, -0.5], [-0.5, 0.5], [0.75, 0.0]])
         local = local * np.array([length, width])
-        world = np.stack([x + c * local[:, 0] - s * local[:, 1], y + s * local[:, 0] + c * local[:, 1]], 1)
+        world = np.stack(
+            [x + c * local[:, 0] - s * local[:, 1], y + s * local[:, 0] + c * local[:, 1]], 1
+        )
         pix = self.ground.to_pixels(world) * self.scale
         pts = np.round(pix * 16).astype(np.int32)
         cv2.fillConvexPoly(img, pts[:4], rgb, cv2.LINE_AA, 4)
