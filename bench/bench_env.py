@@ -76,9 +76,8 @@ def main() -> None:
     print(f"track: {name}   observation: 160x120 grayscale front camera   one process")
     print(f"{'path':<34}{'steps':>8}{'episodes':>10}{'steps/s':>10}")
     print(f"{'fast (homography camera)':<34}{args.steps:>8}{fast_eps:>10}{fast:>10.0f}")
-    print(
-        f"{'reference (pybullet getCameraImage)':<34}{args.reference_steps:>8}{ref_eps:>10}{ref:>10.0f}"
-    )
+    label = "reference (pybullet getCameraImage)"
+    print(f"{label:<34}{args.reference_steps:>8}{ref_eps:>10}{ref:>10.0f}")
     print(f"steps_per_s={fast:.0f} reference_steps_per_s={ref:.0f} ratio={fast / ref:.1f}")
 
 
