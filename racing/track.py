@@ -17,6 +17,7 @@ row k of the inner border with row k of the outer one.
 
 from __future__ import annotations
 
+import io
 import math
 from dataclasses import dataclass
 from functools import cached_property
@@ -31,6 +32,8 @@ MIN_DISTINCT_POINTS = 4
 
 MAX_COORDINATE_M = 1_000.0
 """Largest absolute coordinate accepted in a track file, metres."""
+
+NPY_MAGIC = b"\x93NUMPY"
 
 MIN_WIDTH_M = 0.2
 """Narrowest track accepted, metres (a DeepRacer car is about 0.2 m wide)."""
@@ -62,13 +65,13 @@ class Location:
 def load_waypoints(path: str | Path) -> np.ndarray:
     """Read a DeepRacer ``.npy`` track file, raising :class:`TrackError` when it is unusable."""
     path = Path(path)
+    data = path.read_bytes()
+    if not data.startswith(NPY_MAGIC):
+        raise TrackError(f"{path.name}: not a NumPy .npy array")
     try:
-        array = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise
-    except (ValueError, OSError, EOFError) as exc:
-        raise TrackError(f"{path.name}: not a NumPy .npy array ({exc})") from exc
-    return array
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except (ValueError, OSError, EOFError, MemoryError) as exc:
+        raise TrackError(f"{path.name}: not a readable NumPy .npy array ({exc})") from exc
 
 
 def _clean(array: np.ndarray) -> tuple[np.ndarray, bool]:

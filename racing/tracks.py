@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from racing.track import Track, TrackError
+from racing.track import NPY_MAGIC, Track, TrackError
 
 BUILTIN_DIR = Path(__file__).resolve().parent / "tracks"
 TRACK_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,63}\Z")
@@ -51,7 +51,11 @@ def _load_cached(path: str, mtime_ns: int, name: str) -> Track:
 def _read_names(folder: Path) -> dict[str, dict]:
     catalog = folder / "catalog.json"
     if catalog.is_file():
-        return json.loads(catalog.read_text())
+        try:
+            names = json.loads(catalog.read_text())
+        except ValueError:
+            return {}
+        return names if isinstance(names, dict) else {}
     return {}
 
 
@@ -138,7 +142,7 @@ def import_track(
         )
     if len(data) > MAX_TRACK_FILE_BYTES:
         raise TrackError(f"track file is {len(data)} bytes; the limit is {MAX_TRACK_FILE_BYTES}")
-    if not data.startswith(b"\x93NUMPY"):  # np.load would also open .npz/zip archives
+    if not data.startswith(NPY_MAGIC):  # np.load would also open .npz/zip archives
         raise TrackError("not a NumPy .npy array (the file does not start with the .npy magic)")
     try:
         array = np.load(io.BytesIO(data), allow_pickle=False)

@@ -1,0 +1,128 @@
+"""Small top-down PNG pictures of a track for the console's track picker.
+
+The picture is the same ground texture the cameras see (:func:`racing.texture.render_ground`),
+rendered a little finer than needed and shrunk with area averaging so thin lines stay smooth,
+then cropped to the track with a small margin. On top of it: a chequered start line across the
+road at waypoint 0 and an arrow pointing the driving direction.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from racing.texture import render_ground
+from racing.track import Track
+
+MARGIN_M = 0.25
+"""Floor shown around the track's bounding box, metres."""
+SUPERSAMPLE = 2
+"""The texture is rendered this many times finer than the final picture, then shrunk."""
+FINEST_RESOLUTION_M = 0.004
+"""Never render finer than this (metres per pixel), however large the picture asked for."""
+MAX_RENDER_PX = 2048
+"""Never render the texture wider than this before shrinking (keeps big previews fast)."""
+MIN_WIDTH_PX = 32
+MAX_WIDTH_PX = 4096
+
+ARROW_RGB = (228, 48, 40)
+CHEQUER_DARK_RGB = (20, 20, 20)
+CHEQUER_LIGHT_RGB = (245, 245, 245)
+CHEQUER_SQUARES = 8
+"""Squares across the road in each of the start line's two rows."""
+ARROW_LENGTH_M = 0.7
+"""Nominal arrow length along the centre line, metres (shorter on tiny tracks)."""
+
+_SHIFT = 4  # fixed-point bits for sub-pixel drawing
+_SCALE = 1 << _SHIFT
+
+
+def render_preview_png(track: Track, width_px: int = 480) -> bytes:
+    """A top-down PNG of ``track``, ``width_px`` pixels wide, in the driving direction.
+
+    The height follows the track's aspect ratio. The start line is chequered and an arrow just
+    past it shows which way the car drives. The output depends only on the track and
+    ``width_px`` (same bytes every call). Raises ``ValueError`` for a width outside
+    ``MIN_WIDTH_PX..MAX_WIDTH_PX``.
+    """
+    image = render_preview(track, width_px)
+    ok, buffer = cv2.imencode(".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    if not ok:  # pragma: no cover - cv2 only fails on empty or odd images
+        raise RuntimeError("PNG encoding failed")
+    return buffer.tobytes()
+
+
+def render_preview(track: Track, width_px: int = 480) -> np.ndarray:
+    """The preview as an ``(H, width_px, 3)`` uint8 RGB array (see :func:`render_preview_png`)."""
+    if not MIN_WIDTH_PX <= int(width_px) <= MAX_WIDTH_PX:
+        raise ValueError(f"width_px must be {MIN_WIDTH_PX}..{MAX_WIDTH_PX}, not {width_px}")
+    width_px = int(width_px)
+    xmin, ymin, xmax, ymax = track.bounds()
+    span_x = xmax - xmin + 2 * MARGIN_M
+    span_y = ymax - ymin + 2 * MARGIN_M
+    final_res = span_x / width_px
+    resolution = max(final_res / SUPERSAMPLE, FINEST_RESOLUTION_M, span_x / MAX_RENDER_PX)
+    texture = render_ground(track, resolution=resolution, rgb=True, margin=MARGIN_M)
+    height_px = max(1, int(round(span_y / final_res)))
+    image = cv2.resize(texture.image, (width_px, height_px), interpolation=cv2.INTER_AREA)
+    scale = (width_px / texture.image.shape[1], height_px / texture.image.shape[0])
+
+    def to_px(points: np.ndarray) -> np.ndarray:
+        px = texture.to_pixels(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+        px = (px + 0.5) * np.asarray(scale) - 0.5
+        return np.round(px * _SCALE).astype(np.int32)
+
+    _draw_start_line(image, track, to_px)
+    _draw_arrow(image, track, to_px, px_per_m=width_px / span_x)
+    return image
+
+
+def _draw_start_line(image: np.ndarray, track: Track, to_px) -> None:
+    """Two rows of black and white squares across the road at waypoint 0."""
+    heading = track.heading_at(0.0)
+    along = np.array([math.cos(heading), math.sin(heading)])
+    across = np.array([-math.sin(heading), math.cos(heading)])
+    half = float(track.widths[0]) / 2
+    square = 2 * half / CHEQUER_SQUARES
+    centre = np.asarray(track.centre[0], dtype=np.float64)
+    for row in range(2):
+        for col in range(CHEQUER_SQUARES):
+            a0, a1 = (row - 1) * square, row * square
+            c0, c1 = -half + col * square, -half + (col + 1) * square
+            corners = np.array(
+                [
+                    centre + a * along + c * across
+                    for a, c in ((a0, c0), (a1, c0), (a1, c1), (a0, c1))
+                ]
+            )
+            colour = CHEQUER_DARK_RGB if (row + col) % 2 else CHEQUER_LIGHT_RGB
+            cv2.fillConvexPoly(image, to_px(corners), colour, cv2.LINE_AA, _SHIFT)
+
+
+def _draw_arrow(image: np.ndarray, track: Track, to_px, *, px_per_m: float) -> None:
+    """An arrow along the centre line just past the start line, in the driving direction."""
+    length = min(ARROW_LENGTH_M, 0.08 * track.length)
+    # Begin one chequer square past the start line so the arrow does not hide it.
+    start = float(track.widths[0]) / CHEQUER_SQUARES + 0.05
+    if not track.closed:
+        length = min(length, max(track.length - start, 0.0))
+    if length <= 0:
+        return
+    tail = track.point_at(start)
+    tip = track.point_at(start + length)
+    p0, p1 = to_px(np.array([tail, tip]))
+    thickness = max(2, int(round(0.05 * px_per_m)))
+    arrow_px = float(np.hypot(*(p1 - p0))) / _SCALE
+    tip_fraction = min(0.5, max(0.25, 8.0 / max(arrow_px, 1.0)))
+    cv2.arrowedLine(
+        image,
+        tuple(int(v) for v in p0),
+        tuple(int(v) for v in p1),
+        ARROW_RGB,
+        thickness,
+        cv2.LINE_AA,
+        _SHIFT,
+        tip_fraction,
+    )

@@ -1,0 +1,114 @@
+"""Track previews: a PNG of the requested width, the same bytes every time, arrow and start line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from racing.preview import ARROW_RGB, MARGIN_M, render_preview, render_preview_png
+from racing.track import Track
+from racing.tracks import TrackCatalog
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+SHARED_TRACKS = Path(__file__).resolve().parents[2].parent / "shared" / "tracks"
+
+
+@pytest.fixture(scope="module")
+def summit() -> Track:
+    return TrackCatalog().load("racecraft_summit")
+
+
+def decode(png: bytes) -> np.ndarray:
+    """PNG bytes to an RGB array."""
+    image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert image is not None and image.ndim == 3 and image.shape[2] == 3
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def arrow_pixels(image: np.ndarray) -> np.ndarray:
+    """(row, column) of pixels close to the arrow colour."""
+    diff = np.abs(image.astype(int) - np.array(ARROW_RGB)).sum(axis=2)
+    return np.argwhere(diff < 40)
+
+
+@pytest.mark.parametrize("width_px", [64, 200, 480, 641])
+def test_png_of_the_requested_width(summit: Track, width_px: int) -> None:
+    png = render_preview_png(summit, width_px=width_px)
+    assert png.startswith(PNG_SIGNATURE)
+    image = decode(png)
+    assert image.shape[1] == width_px
+    xmin, ymin, xmax, ymax = summit.bounds()
+    aspect = (ymax - ymin + 2 * MARGIN_M) / (xmax - xmin + 2 * MARGIN_M)
+    assert image.shape[0] == pytest.approx(width_px * aspect, abs=1)
+
+
+def test_default_width(summit: Track) -> None:
+    assert decode(render_preview_png(summit)).shape[1] == 480
+
+
+def test_deterministic(summit: Track) -> None:
+    assert render_preview_png(summit) == render_preview_png(summit)
+    fresh = TrackCatalog().load("racecraft_summit")
+    assert render_preview_png(fresh) == render_preview_png(summit)
+
+
+def test_png_holds_the_rendered_image(summit: Track) -> None:
+    assert np.array_equal(decode(render_preview_png(summit)), render_preview(summit))
+
+
+def test_arrow_points_the_driving_way(summit: Track) -> None:
+    """The arrow sits just past the start line, on the side the car drives towards."""
+    for track in (summit, summit.reversed()):
+        image = render_preview(track, width_px=480)
+        red = arrow_pixels(image)
+        assert len(red) > 20
+        rows, cols = red.mean(axis=0)
+        xmin, _, xmax, ymax = track.bounds()
+        px_per_m = 480 / (xmax - xmin + 2 * MARGIN_M)
+        start_col = (track.centre[0][0] - xmin + MARGIN_M) * px_per_m
+        ahead = track.point_at(0.5)[0] - track.centre[0][0]  # x grows to the right
+        assert np.sign(cols - start_col) == np.sign(ahead)
+        assert (ymax + MARGIN_M - track.centre[0][1]) * px_per_m == pytest.approx(rows, abs=8)
+
+
+def test_start_line_is_chequered(summit: Track) -> None:
+    image = render_preview(summit, width_px=480)
+    xmin, _, xmax, ymax = summit.bounds()
+    px_per_m = 480 / (xmax - xmin + 2 * MARGIN_M)
+    x, y = summit.centre[0]
+    col = int((x - xmin + MARGIN_M) * px_per_m)
+    row = int((ymax + MARGIN_M - y) * px_per_m)
+    patch = image[row - 15 : row + 15, col - 6 : col + 6].reshape(-1, 3).astype(int)
+    assert (patch.sum(axis=1) < 120).any()  # dark squares
+    assert (patch.sum(axis=1) > 650).any()  # light squares
+
+
+@pytest.mark.parametrize("track_id", ["racecraft_summit", "racecraft_oval", "racecraft_technical"])
+def test_every_builtin_track_renders(track_id: str) -> None:
+    image = decode(render_preview_png(TrackCatalog().load(track_id), width_px=320))
+    assert image.shape[1] == 320
+    # Mostly floor and road, cropped close: the road covers a fair share of the picture.
+    road = (np.abs(image.astype(int) - (52, 54, 60)).sum(axis=2) < 30).mean()
+    assert 0.1 < road < 0.8
+
+
+def test_open_route_renders() -> None:
+    path = SHARED_TRACKS / "Straight_track.npy"
+    if path.is_file():
+        track = Track.from_file(path)
+    else:
+        xs = np.linspace(0.0, 5.0, 21)
+        rows = np.stack([xs, xs * 0, xs, xs * 0 + 0.3, xs, xs * 0 - 0.3], axis=1)
+        track = Track.from_array(rows)
+    image = decode(render_preview_png(track, width_px=300))
+    assert image.shape[1] == 300
+    assert len(arrow_pixels(image)) > 10
+
+
+@pytest.mark.parametrize("width_px", [0, 8, 100_000])
+def test_unreasonable_width_is_refused(summit: Track, width_px: int) -> None:
+    with pytest.raises(ValueError, match="width_px"):
+        render_preview_png(summit, width_px=width_px)
