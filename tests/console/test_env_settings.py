@@ -1,0 +1,153 @@
+"""Settings come from environment variables; bad values stop the start with a clear error."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from django.core.exceptions import ImproperlyConfigured
+
+from console.env import bucket_name, envbool, envint, envlist, envstr
+from console.redisconf import celery_settings, celery_url, channel_layers
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.parametrize(
+    ("raw", "expected"),
+    [("1", True), ("TRUE", True), ("yes", True), ("on", True), ("0", False), ("False", False)],
+)
+def test_envbool_reads_common_spellings(
+    monkeypatch: pytest.MonkeyPatch, raw: str, expected: bool
+) -> None:
+    monkeypatch.setenv("RC_FLAG", raw)
+    assert envbool("RC_FLAG", not expected) is expected
+
+
+def test_envbool_default_when_unset_or_empty(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("RC_FLAG", raising=False)
+    assert envbool("RC_FLAG", True) is True
+    monkeypatch.setenv("RC_FLAG", "  ")
+    assert envbool("RC_FLAG", False) is False
+
+
+def test_envbool_rejects_other_values(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("RC_FLAG", "maybe")
+    with pytest.raises(ImproperlyConfigured, match="RC_FLAG='maybe' is not a boolean"):
+        envbool("RC_FLAG", False)
+
+
+def test_envint(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("RC_NUM", raising=False)
+    assert envint("RC_NUM", 7) == 7
+    monkeypatch.setenv("RC_NUM", "42")
+    assert envint("RC_NUM", 7) == 42
+    monkeypatch.setenv("RC_NUM", "4.5")
+    with pytest.raises(ImproperlyConfigured, match="not an integer"):
+        envint("RC_NUM", 7)
+    monkeypatch.setenv("RC_NUM", "0")
+    with pytest.raises(ImproperlyConfigured, match="below the minimum 1"):
+        envint("RC_NUM", 7, minimum=1)
+
+
+def test_envstr_and_envlist(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("RC_TEXT", "  hello ")
+    assert envstr("RC_TEXT") == "hello"
+    monkeypatch.delenv("RC_TEXT")
+    assert envstr("RC_TEXT", "fallback") == "fallback"
+    monkeypatch.setenv("RC_HOSTS", "a.example, b.example,,")
+    assert envlist("RC_HOSTS") == ["a.example", "b.example"]
+
+
+@pytest.mark.parametrize("name", ["deepracer-models", "deepracer", "deepracer.team-1"])
+def test_bucket_name_accepts_deepracer_buckets(name: str) -> None:
+    assert bucket_name(name) == name
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        ("models", "must start with 'deepracer'"),
+        ("my-deepracer", "must start with 'deepracer'"),
+        ("deepracer_Models", "not a valid bucket name"),
+        ("deepracer-", "not a valid bucket name"),
+        ("deepracer" + "x" * 60, "not a valid bucket name"),
+    ],
+)
+def test_bucket_name_rejects(name: str, message: str) -> None:
+    with pytest.raises(ImproperlyConfigured, match=message):
+        bucket_name(name)
+
+
+def test_unix_socket_url_is_translated_for_celery() -> None:
+    assert celery_url("unix:///tmp/r.sock?db=3") == "redis+socket:///tmp/r.sock?virtual_host=3"
+    assert celery_url("unix:///tmp/r.sock") == "redis+socket:///tmp/r.sock?virtual_host=0"
+    assert celery_url("redis://127.0.0.1:6379/15") == "redis://127.0.0.1:6379/15"
+
+
+def test_redis_prefix_reaches_every_client() -> None:
+    layers = channel_layers("redis://h:6379/1", "p:")
+    assert layers["default"]["CONFIG"] == {"hosts": ["redis://h:6379/1"], "prefix": "p:asgi"}
+    celery = celery_settings("redis://h:6379/1", "p:")
+    assert celery["CELERY_BROKER_TRANSPORT_OPTIONS"] == {"global_keyprefix": "p:"}
+    assert celery["CELERY_RESULT_BACKEND_TRANSPORT_OPTIONS"] == {"global_keyprefix": "p:"}
+    assert celery_settings("redis://h:6379/1", "")["CELERY_BROKER_TRANSPORT_OPTIONS"] == {}
+
+
+def _load_settings(tmp_path: Path, **env: str) -> subprocess.CompletedProcess[str]:
+    """Import console.settings in a fresh interpreter with exactly ``env`` set."""
+    clean = {k: v for k, v in os.environ.items() if k in ("PATH", "HOME", "LANG")}
+    clean |= {"RACECRAFT_VAR_DIR": str(tmp_path / "var"), **env}
+    code = (
+        "import console.settings as s;"
+        "print(s.DATABASES['default']['ENGINE'], s.MINIO_BUCKET, s.REDIS_URL, s.DEBUG)"
+    )
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=REPO,
+        env=clean,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+def test_defaults_need_no_environment(tmp_path: Path) -> None:
+    result = _load_settings(tmp_path)
+    assert result.returncode == 0, result.stderr
+    engine, bucket, redis_url, debug = result.stdout.split()
+    assert engine == "django.db.backends.sqlite3"
+    assert bucket == "deepracer-models"
+    assert redis_url == f"unix://{tmp_path}/var/redis/redis.sock?db=0"
+    assert debug == "True"
+    assert (tmp_path / "var").is_dir()
+
+
+@pytest.mark.parametrize(
+    ("env", "message"),
+    [
+        ({"DEBUG": "perhaps"}, "DEBUG='perhaps' is not a boolean"),
+        ({"DEBUG": "0"}, "SECRET_KEY must be set"),
+        ({"MINIO_BUCKET": "models"}, "must start with 'deepracer'"),
+        ({"MINIO_SECURE": "2"}, "MINIO_SECURE='2' is not a boolean"),
+        ({"MINIO_ENDPOINT": "minio:9000"}, "MINIO_ACCESS_KEY and MINIO_SECRET_KEY"),
+        ({"CELERY_WORKER_CONCURRENCY": "many"}, "not an integer"),
+        ({"DATABASE_URL": "nosuchdb://x/y"}, "DATABASE_URL"),
+    ],
+)
+def test_bad_environment_raises_improperly_configured(
+    tmp_path: Path, env: dict[str, str], message: str
+) -> None:
+    result = _load_settings(tmp_path, **env)
+    assert result.returncode != 0
+    assert "ImproperlyConfigured" in result.stderr
+    assert message in result.stderr
+
+
+def test_database_url_selects_postgresql(tmp_path: Path) -> None:
+    result = _load_settings(tmp_path, DATABASE_URL="postgres://postgres@127.0.0.1:5432/test")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split()[0] == "django.db.backends.postgresql"
