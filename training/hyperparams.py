@@ -54,8 +54,11 @@ class Hyperparameters:
         return asdict(self)
 
 
-SAC_DEFAULTS = {"discount_factor": 0.99, "loss_type": "mean_squared_error",
-                "num_episodes_between_training": 1}
+SAC_DEFAULTS = {
+    "discount_factor": 0.99,
+    "loss_type": "mean_squared_error",
+    "num_episodes_between_training": 1,
+}
 
 RANGES: dict[str, tuple[float, float]] = {
     "num_epochs": (3, 10),

@@ -1,0 +1,101 @@
+"""Tiny real models for the export and import tests (trained once per session, on request)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from racing.env import RacingEnv
+from training.metadata import ModelMetadata, build_metadata
+from training.policies import policy_kwargs, sac_policy_kwargs
+
+TRACK = "racecraft_summit"
+CONTINUOUS = {"steering_angle": {"low": -25.0, "high": 20.0}, "speed": {"low": 0.5, "high": 3.0}}
+
+
+@dataclass(frozen=True)
+class TinyModel:
+    model: BaseAlgorithm
+    metadata: ModelMetadata
+
+
+@pytest.fixture(scope="session")
+def ppo_discrete() -> TinyModel:
+    env = RacingEnv(TRACK)
+    model = PPO(
+        "CnnPolicy",
+        env,
+        policy_kwargs=policy_kwargs(),
+        n_steps=64,
+        batch_size=32,
+        n_epochs=1,
+        device="cpu",
+        seed=1,
+    )
+    model.learn(64)
+    env.close()
+    meta = build_metadata(
+        action_space=env.actions.to_metadata(), neural_network="RACECRAFT_LEAN_CNN"
+    )
+    return TinyModel(model, meta)
+
+
+@pytest.fixture(scope="session")
+def ppo_continuous() -> TinyModel:
+    env = RacingEnv(TRACK, action_space=CONTINUOUS)
+    model = PPO(
+        "CnnPolicy",
+        env,
+        policy_kwargs=policy_kwargs(),
+        n_steps=64,
+        batch_size=32,
+        n_epochs=1,
+        device="cpu",
+        seed=2,
+    )
+    model.learn(64)
+    env.close()
+    return TinyModel(
+        model, build_metadata(action_space=CONTINUOUS, neural_network="RACECRAFT_LEAN_CNN")
+    )
+
+
+@pytest.fixture(scope="session")
+def sac_continuous() -> TinyModel:
+    env = RacingEnv(TRACK, action_space=CONTINUOUS)
+    model = SAC(
+        "CnnPolicy",
+        env,
+        policy_kwargs=sac_policy_kwargs(),
+        buffer_size=1000,
+        learning_starts=10,
+        batch_size=16,
+        device="cpu",
+        seed=3,
+    )
+    model.learn(20)
+    env.close()
+    meta = build_metadata(
+        action_space=CONTINUOUS, training_algorithm="sac", neural_network="RACECRAFT_LEAN_CNN"
+    )
+    return TinyModel(model, meta)
+
+
+@pytest.fixture(scope="session")
+def camera_frames() -> np.ndarray:
+    """20 real front-camera observations, ``(20, 120, 160, 1)`` uint8, from random driving."""
+    env = RacingEnv(TRACK)
+    rng = np.random.default_rng(0)
+    obs, _ = env.reset(seed=0)
+    frames = []
+    while len(frames) < 20:
+        frames.append(obs)
+        obs, _, terminated, truncated, _ = env.step(int(rng.integers(env.action_space.n)))
+        if terminated or truncated:
+            obs, _ = env.reset()
+    env.close()
+    return np.stack(frames)

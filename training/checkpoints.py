@@ -1,0 +1,197 @@
+"""Checkpoints: stable-baselines3 zips, loaded without trusting them.
+
+A checkpoint is SB3's own ``model.save()`` zip, so it opens in SB3 anywhere. But ``PPO.load``
+unpickles parts of that zip (policy class, spaces, schedules), and an imported model comes from
+a user: unpickling it would run their code in our worker. So nothing here calls it. A model is
+built from what we already know (algorithm, network, spaces from the model's metadata, or the
+training env) and only tensors are copied in, read with ``torch.load(weights_only=True)``, which
+refuses anything but tensors and plain containers.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from collections.abc import Mapping
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from training.metadata import ModelMetadata
+from training.policies import policy_kwargs, sac_policy_kwargs
+
+MAX_CHECKPOINT_BYTES = 1_000_000_000  # uncompressed tensors in one checkpoint zip
+
+
+class CheckpointError(ValueError):
+    """A checkpoint zip that does not load, or does not fit the model's metadata."""
+
+
+# --- checkpoints ------------------------------------------------------------------------------
+
+
+class _SpacesEnv(gym.Env):
+    """An env that only carries the spaces, so SB3 can build a policy without a simulator."""
+
+    def __init__(self, metadata: ModelMetadata) -> None:
+        self.observation_space = gym.spaces.Box(0, 255, (120, 160, metadata.channels), np.uint8)
+        self.action_space = metadata.actions.gym_space
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple:
+        super().reset(seed=seed)
+        return np.zeros(self.observation_space.shape, np.uint8), {}
+
+    def step(self, action: Any) -> tuple:
+        return np.zeros(self.observation_space.shape, np.uint8), 0.0, True, False, {}
+
+
+def new_model(metadata: ModelMetadata) -> BaseAlgorithm:
+    """An untrained SB3 model (CPU) of the metadata's algorithm, network and spaces."""
+    env = _SpacesEnv(metadata)
+    network = metadata.neural_network
+    if metadata.training_algorithm == "sac":
+        kwargs = sac_policy_kwargs(network)
+        return SAC("CnnPolicy", env, policy_kwargs=kwargs, buffer_size=1, device="cpu")
+    kwargs = policy_kwargs(network)
+    return PPO("CnnPolicy", env, policy_kwargs=kwargs, n_steps=2, batch_size=2, device="cpu")
+
+
+def read_checkpoint_tensors(zip_bytes: bytes) -> dict[str, Any]:
+    """The ``*.pth`` members of an SB3 zip, loaded with ``weights_only=True`` (name → object).
+
+    Raises :class:`CheckpointError` for a corrupt zip or more than 1 GB of tensors.
+    """
+    try:
+        with zipfile.ZipFile(io.BytesIO(zip_bytes)) as archive:
+            infos = archive.infolist()
+            if len(infos) > 64 or sum(i.file_size for i in infos) > MAX_CHECKPOINT_BYTES:
+                raise CheckpointError("the checkpoint is too large or has too many files")
+            tensors = {}
+            for info in infos:
+                if info.filename.endswith(".pth") and "/" not in info.filename:
+                    raw = archive.read(info)
+                    tensors[info.filename[:-4]] = torch.load(
+                        io.BytesIO(raw), map_location="cpu", weights_only=True
+                    )
+    except CheckpointError:
+        raise
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError) as exc:
+        raise CheckpointError(f"not a readable zip file ({exc})") from None
+    except Exception as exc:  # torch.load raises many types for bad data
+        raise CheckpointError(f"the tensors do not load ({type(exc).__name__}: {exc})") from None
+    if "policy" not in tensors:
+        raise CheckpointError("not a stable-baselines3 model (no policy.pth inside)")
+    return tensors
+
+
+def _check_shapes(state: Mapping[str, Any], metadata: ModelMetadata) -> None:
+    """Clear messages for the common mismatches before the strict load."""
+    sac = any(k.startswith("actor.") for k in state)
+    algorithm = "sac" if sac else "clipped_ppo"
+    if algorithm != metadata.training_algorithm:
+        raise CheckpointError(
+            f"the checkpoint is a {'SAC' if sac else 'PPO'} model but model_metadata.json "
+            f"says training_algorithm {metadata.training_algorithm}"
+        )
+    convs = [v for v in state.values() if isinstance(v, torch.Tensor) and v.dim() == 4]
+    if convs and convs[0].shape[1] != metadata.channels:
+        raise CheckpointError(
+            f"the checkpoint takes {convs[0].shape[1]}-channel images but the sensor "
+            f"{metadata.camera} gives {metadata.channels}"
+        )
+    head = state.get("actor.mu.weight" if sac else "action_net.weight")
+    if head is None:
+        return
+    outputs = int(head.shape[0])
+    kind = metadata.action_space_type
+    if kind == "discrete" and (outputs != len(metadata.actions.actions) or "log_std" in state):
+        what = f"{outputs} discrete actions" if "log_std" not in state else "continuous actions"
+        raise CheckpointError(
+            f"the checkpoint has {what} but model_metadata.json lists "
+            f"{len(metadata.actions.actions)} discrete actions"
+        )
+    if kind == "continuous" and (outputs != 2 or (not sac and "log_std" not in state)):
+        raise CheckpointError(
+            f"the checkpoint has {outputs} discrete actions but model_metadata.json has a "
+            "continuous action space"
+        )
+
+
+def load_weights(
+    model: BaseAlgorithm,
+    zip_bytes: bytes,
+    tensors: dict | None = None,
+    *,
+    fits: str = "this model's network, sensor or action space",
+) -> None:
+    """Copy a checkpoint's policy weights (and optimizer state when it fits) into ``model``.
+
+    Raises :class:`CheckpointError` when the weights do not fit the model's network.
+    """
+    tensors = tensors if tensors is not None else read_checkpoint_tensors(zip_bytes)
+    state = tensors["policy"]
+    if not isinstance(state, Mapping):
+        raise CheckpointError("policy.pth is not a state dict")
+    try:
+        model.policy.load_state_dict(state, strict=True)
+    except (RuntimeError, KeyError, TypeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise CheckpointError(
+            f"the weights do not fit {fits} ({first})"
+        ) from None
+    for name in model._get_torch_save_params()[0]:  # e.g. policy.optimizer, actor.optimizer
+        if name != "policy" and name in tensors:
+            target = model
+            for part in name.split("."):
+                target = getattr(target, part)
+            try:
+                target.load_state_dict(tensors[name])
+            except Exception:  # optimizer state is optional; training restarts its moments
+                pass
+    steps = checkpoint_data(zip_bytes).get("num_timesteps")
+    if isinstance(steps, int) and steps >= 0:
+        model.num_timesteps = steps
+
+
+def checkpoint_data(zip_bytes: bytes) -> dict[str, Any]:
+    """The plain-JSON entries of the checkpoint's ``data`` file (serialized ones left out)."""
+    try:
+        with zipfile.ZipFile(io.BytesIO(zip_bytes)) as archive:
+            info = archive.getinfo("data")
+            if info.file_size > 10_000_000:
+                return {}
+            raw = json.loads(archive.read(info))
+    except (KeyError, ValueError, zipfile.BadZipFile):
+        return {}
+    if not isinstance(raw, dict):
+        return {}
+    return {k: v for k, v in raw.items() if not (isinstance(v, dict) and ":serialized:" in v)}
+
+
+def load_checkpoint(zip_bytes: bytes, metadata: ModelMetadata) -> BaseAlgorithm:
+    """A model of ``metadata``'s algorithm/network/spaces with the checkpoint's weights (and its
+    optimizer state when that fits). Safe on untrusted bytes (nothing is unpickled).
+
+    Raises :class:`CheckpointError` with a message fit for users.
+    """
+    tensors = read_checkpoint_tensors(zip_bytes)
+    state = tensors["policy"]
+    if not isinstance(state, Mapping):
+        raise CheckpointError("policy.pth is not a state dict")
+    _check_shapes(state, metadata)
+    model = new_model(metadata)
+    fits = f"neural_network {metadata.neural_network} with this sensor and action space"
+    load_weights(model, zip_bytes, tensors, fits=fits)
+    return model
+
+
+def checkpoint_bytes(model: BaseAlgorithm) -> bytes:
+    """``model.save()`` into memory: the zip that goes to the store."""
+    buffer = io.BytesIO()
+    model.save(buffer)
+    return buffer.getvalue()

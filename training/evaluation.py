@@ -1,0 +1,260 @@
+"""Evaluating a model as DeepRacer does: 3 to 5 laps back to back from the start line, with
+resets and penalties, per-lap results, EvaluationMetrics entries, a sim-trace and an MP4.
+
+No user code runs here: an evaluation drives the policy; the reward column of the sim-trace is
+0 (DeepRacer's evaluations do not train, so nothing reads it).
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import cv2
+import numpy as np
+
+from racing.env import RacingEnv
+from racing.rules import STATUS_LABELS, LapRecord, Status
+from racing.sensors import ground_for
+from racing.views import ChaseView
+from training.rollout import EnvSpec
+
+MIN_LAPS, MAX_LAPS = 3, 5
+DEFAULT_RESETS = 10_000
+"""DeepRacer on AWS allows this many resets in an evaluation: effectively unlimited."""
+MAX_LAP_SECONDS = 180.0
+"""A lap not finished within this many simulated seconds ends the evaluation (time up)."""
+VIDEO_FPS = 15
+PIP_SCALE = 0.5
+
+
+class EvaluationError(ValueError):
+    """Settings outside what an evaluation allows."""
+
+
+@dataclass(frozen=True)
+class EvaluationSettings:
+    """``laps`` 3-5; penalties in seconds (DeepRacer: off track 2 s, crash 5 s)."""
+
+    laps: int = 3
+    off_track_penalty_s: float = 2.0
+    crash_penalty_s: float = 5.0
+    resets: int = DEFAULT_RESETS
+    record_video: bool = True
+
+    def __post_init__(self) -> None:
+        if not MIN_LAPS <= self.laps <= MAX_LAPS:
+            raise EvaluationError(f"an evaluation runs {MIN_LAPS} to {MAX_LAPS} laps")
+        for name in ("off_track_penalty_s", "crash_penalty_s"):
+            value = getattr(self, name)
+            if not 0 <= value <= 60:
+                raise EvaluationError(f"{name.replace('_', ' ')} must be 0-60 seconds")
+        if self.resets < 0:
+            raise EvaluationError("resets cannot be negative")
+
+
+@dataclass
+class LapResult:
+    """One trial (lap) of an evaluation, as the DeepRacer results table shows it."""
+
+    trial: int
+    time_s: float
+    progress: float
+    status: str
+    off_tracks: int
+    off_track_penalty_s: float
+    crashes: int
+    crash_penalty_s: float
+    resets: int
+    reversals: int = 0
+    immobilizations: int = 0
+
+    @property
+    def status_label(self) -> str:
+        return STATUS_LABELS[Status(self.status)]
+
+    @property
+    def completed(self) -> bool:
+        return self.status == Status.LAP_COMPLETE.value
+
+
+@dataclass
+class EvaluationReport:
+    laps: list[LapResult]
+    metrics: list[dict]
+    rows: list[list]
+    video_mp4: bytes | None = None
+    stopped: bool = False
+    steps: int = 0
+    wall_s: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def completed_laps(self) -> int:
+        return sum(1 for lap in self.laps if lap.completed)
+
+    def metrics_json(self) -> dict:
+        """``EvaluationMetrics.json`` in DeepRacer's shape."""
+        return {"metrics": self.metrics, "version": 2}
+
+    def to_json(self) -> dict:
+        return {"laps": [asdict(lap) for lap in self.laps], "completed_laps": self.completed_laps,
+                "stopped": self.stopped, "steps": self.steps}  # fmt: skip
+
+
+def _lap_result(lap: LapRecord, settings: EvaluationSettings) -> LapResult:
+    return LapResult(
+        trial=lap.lap,
+        time_s=round(lap.time_s, 3),
+        progress=round(lap.progress, 2),
+        status=lap.status.value,
+        off_tracks=lap.off_tracks,
+        off_track_penalty_s=lap.off_tracks * settings.off_track_penalty_s,
+        crashes=lap.crashes,
+        crash_penalty_s=lap.crashes * settings.crash_penalty_s,
+        resets=lap.resets,
+        reversals=lap.reversals,
+        immobilizations=lap.immobilizations,
+    )
+
+
+def _metric(lap: LapRecord, start_wall: float) -> dict:
+    now = time.time()
+    return {
+        "trial": lap.lap,
+        "completion_percentage": int(lap.progress),
+        "elapsed_time_in_milliseconds": int(round(lap.time_s * 1000)),
+        "metric_time": int(now * 1000),
+        "start_time": int(start_wall * 1000),
+        "episode_status": STATUS_LABELS[lap.status],
+        "crash_count": lap.crashes,
+        "immobilized_count": lap.immobilizations,
+        "off_track_count": lap.off_tracks,
+        "reversed_count": lap.reversals,
+        "reset_count": lap.resets,
+    }
+
+
+class VideoWriter:
+    """H.264 MP4 in memory: the chase view with the car's camera inset."""
+
+    def __init__(self, width: int = 320, height: int = 240) -> None:
+        import av
+
+        self.buffer = io.BytesIO()
+        self.container = av.open(self.buffer, mode="w", format="mp4")
+        self.stream = self.container.add_stream("libx264", rate=VIDEO_FPS)
+        self.stream.width, self.stream.height = width, height
+        self.stream.pix_fmt = "yuv420p"
+        self.stream.options = {"preset": "veryfast", "crf": "26"}
+        self.frames = 0
+        self._av = av
+
+    def add(self, chase_rgb: np.ndarray, camera_gray: np.ndarray) -> None:
+        frame = chase_rgb.copy()
+        h, w = camera_gray.shape[:2]
+        inset = cv2.resize(camera_gray, (int(w * PIP_SCALE * 1.5), int(h * PIP_SCALE * 1.5)))
+        ih, iw = inset.shape[:2]
+        frame[6 : 6 + ih, -6 - iw : -6] = inset[..., None]
+        cv2.rectangle(
+            frame, (frame.shape[1] - 7 - iw, 5), (frame.shape[1] - 6, 6 + ih), (255, 255, 255), 1
+        )
+        video_frame = self._av.VideoFrame.from_ndarray(frame, format="rgb24")
+        for packet in self.stream.encode(video_frame):
+            self.container.mux(packet)
+        self.frames += 1
+
+    def finish(self) -> bytes | None:
+        for packet in self.stream.encode():
+            self.container.mux(packet)
+        self.container.close()
+        return self.buffer.getvalue() if self.frames else None
+
+
+def evaluation_env(spec: EnvSpec, settings: EvaluationSettings) -> RacingEnv:
+    rules = {
+        "laps": settings.laps,
+        "resets": settings.resets,
+        "off_track_penalty_s": settings.off_track_penalty_s,
+        "crash_penalty_s": settings.crash_penalty_s,
+        "time_limit_s": settings.laps * MAX_LAP_SECONDS,
+    }
+    return spec.make(lambda params: 0.0, start="start_line", alternate_direction=False,
+                     rules=_rules(rules))  # fmt: skip
+
+
+def _rules(data: dict):
+    from racing.rules import RaceRules
+
+    return RaceRules(**data)
+
+
+def evaluate(
+    policy: Callable[[np.ndarray], object],
+    spec: EnvSpec,
+    settings: EvaluationSettings,
+    *,
+    on_progress: Callable[[dict], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> EvaluationReport:
+    """Drive ``policy`` (observation → action) for ``settings.laps`` laps from the start line.
+
+    ``on_progress`` gets ``{"lap", "laps_done", "progress", "frame"?}`` about 15 times per
+    simulated second of driving; ``should_stop`` is polled every step (a stopped evaluation
+    keeps what it measured).
+    """
+    started = time.monotonic()
+    start_wall = time.time()
+    env = evaluation_env(spec, settings)
+    video = VideoWriter() if settings.record_video else None
+    chase = ChaseView(ground_for(env.track, resolution=0.01, rgb=True)) if video else None
+    obs, _ = env.reset(seed=0)
+    rows: list[list] = []
+    stopped = False
+    info: dict = {}
+    try:
+        while True:
+            action = policy(obs)
+            obs, _, terminated, truncated, info = env.step(action)
+            rows.append(list(info["trace"].stamped()))
+            if video is not None and chase is not None:
+                video.add(chase.render(env.pose, env.objects), obs[..., 0])
+            if on_progress is not None:
+                on_progress({"lap": info["lap"], "laps_done": len(info["laps"]),
+                             "progress": info["progress"], "status": info["status"]})  # fmt: skip
+            if terminated or truncated:
+                break
+            if should_stop is not None and should_stop():
+                stopped = True
+                break
+    finally:
+        env.close()
+    laps = list(env.tracker.laps)
+    current = env.tracker.current_lap
+    if current not in laps and len(laps) < settings.laps:
+        if current.status is Status.IN_PROGRESS:
+            current.status = Status.TIME_UP if not stopped else Status.IN_PROGRESS
+        current.time_s = env.tracker.sim_time - env.tracker.lap_start_time
+        current.progress = env.tracker.progress
+        laps.append(current)
+    return EvaluationReport(
+        laps=[_lap_result(lap, settings) for lap in laps],
+        metrics=[_metric(lap, start_wall) for lap in laps],
+        rows=rows,
+        video_mp4=video.finish() if video else None,
+        stopped=stopped,
+        steps=env.tracker.steps,
+        wall_s=time.monotonic() - started,
+    )
+
+
+def sb3_policy(model) -> Callable[[np.ndarray], object]:
+    """A deterministic policy function from an SB3 model."""
+
+    def act(obs: np.ndarray):
+        action, _ = model.predict(obs, deterministic=True)
+        return action
+
+    return act

@@ -1,0 +1,247 @@
+"""Exporting trained models: the policy as ONNX, the car archive, the virtual-model and logs
+archives; and loading a checkpoint safely (weights only) for a given ``model_metadata.json``.
+
+**ONNX** (:func:`export_onnx`): input ``"observation"``, float32 ``(1, C, 120, 160)``, the
+grayscale camera in 0..255 (``C`` = 1, or 2 for the stereo pair); the /255 scaling is inside the
+graph. Output for a discrete space ``"action_probabilities"`` ``(1, n)`` (softmax over the
+actions of ``model_metadata.json``, in order); for a continuous one ``"action"`` ``(1, 2)`` =
+``[steering_deg, speed_m_s]``, deterministic: PPO's mean clipped to the ranges, SAC's
+tanh-squashed mean rescaled to them (what ``model.predict(obs, deterministic=True)`` returns).
+Exported with torch's TorchScript-based exporter (``dynamo=False``), opset 17: the torch.export
+("dynamo") exporter needs the onnxscript package, which is not a dependency, and the legacy
+exporter handles these small static graphs reliably, offline.
+
+**Archives** are deterministic tar.gz files: names sorted, relative (checked like store keys),
+mtime fixed, owner 0/0, mode 0644, gzip header without name or time.
+
+**Checkpoints** are SB3 ``model.save()`` zips. :func:`load_checkpoint` never unpickles the
+file's ``data`` (SB3 stores classes with cloudpickle there, which would run code from an
+uploaded file): it builds a fresh model from the metadata and loads the tensors with
+``torch.load(weights_only=True)``.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import json
+import tarfile
+import warnings
+from collections.abc import Mapping
+
+import gymnasium as gym
+import torch
+from stable_baselines3 import SAC
+from stable_baselines3.common.base_class import BaseAlgorithm
+from torch import nn
+
+from training.checkpoints import (  # noqa: F401 - re-exported for callers
+    CheckpointError,
+    checkpoint_bytes,
+    load_checkpoint,
+    new_model,
+    read_checkpoint_tensors,
+)
+from training.metadata import ModelMetadata
+from training.storage import StoreError, validate_key
+
+OPSET = 17
+INPUT_NAME = "observation"
+DISCRETE_OUTPUT = "action_probabilities"
+CONTINUOUS_OUTPUT = "action"
+ARCHIVE_MTIME = 1_543_363_200  # 2018-11-28, DeepRacer's launch; any fixed value works
+MAX_CHECKPOINT_BYTES = 1_000_000_000  # uncompressed tensors in one checkpoint zip
+CHECKPOINTS_INDEX = "model/deepracer_checkpoints.json"
+VIRTUAL_MODEL_REQUIRED = (
+    "model/model_metadata.json",
+    "ip/hyperparameters.json",
+    "reward_function.py",
+)
+VIRTUAL_MODEL_EXCLUDED = ("training-simtrace/", "evaluation/", "videos/", "export/", "output/")
+"""Folders left out of the virtual model (DeepRacer leaves out sim-traces, videos, output)."""
+
+
+class ExportError(ValueError):
+    """A model that cannot be exported or archived."""
+
+
+# --- ONNX ------------------------------------------------------------------------------------
+
+
+class _DiscretePolicy(nn.Module):
+    """PPO, discrete: image 0..255 → softmax over the actions."""
+
+    def __init__(self, policy: nn.Module) -> None:
+        super().__init__()
+        self.extractor = policy.pi_features_extractor
+        self.mlp = policy.mlp_extractor
+        self.head = policy.action_net
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        latent = self.mlp.forward_actor(self.extractor(observation / 255.0))
+        return torch.softmax(self.head(latent), dim=-1)
+
+
+class _BoxPolicy(nn.Module):
+    """PPO or SAC, continuous: image 0..255 → deterministic ``[steering_deg, speed]``."""
+
+    def __init__(self, model: BaseAlgorithm) -> None:
+        super().__init__()
+        policy = model.policy
+        self.squashed = isinstance(model, SAC)
+        if self.squashed:
+            actor = policy.actor
+            self.extractor, self.latent, self.head = (
+                actor.features_extractor,
+                actor.latent_pi,
+                actor.mu,
+            )
+        else:
+            self.extractor, self.head = policy.pi_features_extractor, policy.action_net
+            self.latent = policy.mlp_extractor.policy_net
+        space = model.action_space
+        self.register_buffer("low", torch.as_tensor(space.low, dtype=torch.float32))
+        self.register_buffer("high", torch.as_tensor(space.high, dtype=torch.float32))
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        mean = self.head(self.latent(self.extractor(observation / 255.0)))
+        if self.squashed:
+            return self.low + 0.5 * (torch.tanh(mean) + 1.0) * (self.high - self.low)
+        return torch.minimum(torch.maximum(mean, self.low), self.high)
+
+
+def export_onnx(model: BaseAlgorithm | bytes, metadata: ModelMetadata | None = None) -> bytes:
+    """The policy of ``model`` (an SB3 PPO/SAC model, or its saved zip) as ONNX bytes.
+
+    Zip bytes need ``metadata`` and are loaded safely (:func:`load_checkpoint`: SB3's own
+    loader is never used, it unpickles). The metadata, when given, is also stored in the ONNX
+    file's ``model_metadata`` property. Raises :class:`ExportError` (or
+    :class:`CheckpointError` for bad bytes).
+    """
+    if isinstance(model, bytes | bytearray | memoryview):
+        if metadata is None:
+            raise ExportError("exporting a saved checkpoint needs its model_metadata.json")
+        model = load_checkpoint(bytes(model), metadata)
+    space = model.action_space
+    if isinstance(space, gym.spaces.Discrete):
+        if isinstance(model, SAC):
+            raise ExportError("SAC needs a continuous action space")
+        wrapper: nn.Module = _DiscretePolicy(model.policy)
+        output = DISCRETE_OUTPUT
+    elif isinstance(space, gym.spaces.Box) and space.shape == (2,):
+        wrapper, output = _BoxPolicy(model), CONTINUOUS_OUTPUT
+    else:
+        raise ExportError(f"cannot export a policy with action space {space}")
+    shape = tuple(model.policy.observation_space.shape)
+    if len(shape) != 3 or shape[1:] != (120, 160) or shape[0] not in (1, 2):
+        raise ExportError(f"the policy takes images of shape {shape}, not (C, 120, 160)")
+    wrapper.eval()
+    sample = torch.full((1, *shape), 128.0)
+    buffer = io.BytesIO()
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")  # the TorchScript exporter announces its deprecation
+        torch.onnx.export(
+            wrapper,
+            (sample,),
+            buffer,
+            dynamo=False,
+            input_names=[INPUT_NAME],
+            output_names=[output],
+            opset_version=OPSET,
+            do_constant_folding=True,
+        )
+    return _with_properties(buffer.getvalue(), metadata)
+
+
+def _with_properties(onnx_bytes: bytes, metadata: ModelMetadata | None) -> bytes:
+    import onnx
+
+    proto = onnx.load_from_string(onnx_bytes)
+    onnx.checker.check_model(proto)
+    proto.producer_name = "racecraft"
+    props = {"input_scale": "0..255 grayscale"}
+    if metadata is not None:
+        props["model_metadata"] = json.dumps(metadata.to_json(), sort_keys=True)
+    onnx.helper.set_model_props(proto, props)
+    return proto.SerializeToString()
+
+
+# --- archives --------------------------------------------------------------------------------
+
+
+def deterministic_tar_gz(files: Mapping[str, bytes]) -> bytes:
+    """A tar.gz of ``files`` (relative name → bytes) that is byte-for-byte reproducible."""
+    raw = io.BytesIO()
+    with tarfile.open(fileobj=raw, mode="w", format=tarfile.PAX_FORMAT) as tar:
+        for name in sorted(files):
+            try:
+                validate_key(name)
+            except StoreError as exc:
+                raise ExportError(f"bad archive member name: {exc}") from None
+            data = bytes(files[name])
+            info = tarfile.TarInfo(name)
+            info.size, info.mtime, info.mode = len(data), ARCHIVE_MTIME, 0o644
+            info.uid = info.gid = 0
+            info.uname = info.gname = ""
+            tar.addfile(info, io.BytesIO(data))
+    return gzip.compress(raw.getvalue(), compresslevel=6, mtime=0)
+
+
+def build_car_archive(metadata: ModelMetadata, onnx_bytes: bytes) -> bytes:
+    """The physical-car download: ``model_metadata.json`` and ``model.onnx``, both at the top.
+
+    DeepRacer's own file holds ``agent/model.pb``, a frozen TensorFlow graph, which the car
+    moves to ``model.pb`` on upload. Racecraft models are ONNX, so the archive has no
+    ``agent/`` folder: a stock car would take any ``agent/model.*`` for a TensorFlow graph and
+    fail later; an ONNX-aware loader (or OpenVINO's converter, which reads ONNX) finds
+    ``model.onnx`` beside the metadata, as in architecture.md's ``export/car.tar.gz``.
+    """
+    if not onnx_bytes:
+        raise ExportError("the ONNX model is empty")
+    return deterministic_tar_gz(
+        {"model_metadata.json": metadata.dumps(), "model.onnx": bytes(onnx_bytes)}
+    )
+
+
+def checkpoints_index(best: str, last: str) -> bytes:
+    """DeepRacer's ``deepracer_checkpoints.json`` naming the best and last checkpoints."""
+    data = {"best_checkpoint": {"name": best}, "last_checkpoint": {"name": last}}
+    return (json.dumps(data, indent=2, sort_keys=True) + "\n").encode()
+
+
+def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
+    """``virtualmodel.tar.gz``: a model folder that :mod:`training.archive` imports back.
+
+    ``files`` maps names inside the model folder (``model/model_metadata.json``,
+    ``ip/hyperparameters.json``, ``reward_function.py``, ``model/<checkpoint>.zip``, optional
+    ``model/deepracer_checkpoints.json``, ``metrics/*.json``...) to bytes. Sim-traces,
+    evaluations, videos and exports are left out. Without a checkpoints index, one is written:
+    ``best``/``last`` when those checkpoints exist, else the only checkpoint for both.
+    Raises :class:`ExportError` when a required file or the checkpoint is missing.
+    """
+    kept = {n: bytes(d) for n, d in files.items() if not n.startswith(VIRTUAL_MODEL_EXCLUDED)}
+    missing = [name for name in VIRTUAL_MODEL_REQUIRED if name not in kept]
+    checkpoints = sorted(
+        n[len("model/") : -len(".zip")]
+        for n in kept
+        if n.startswith("model/") and n.endswith(".zip")
+    )
+    if not checkpoints:
+        missing.append("model/<checkpoint>.zip")
+    if missing:
+        raise ExportError(f"a virtual model needs {', '.join(missing)}")
+    if CHECKPOINTS_INDEX not in kept:
+        if len(checkpoints) == 1:
+            best = last = checkpoints[0]
+        else:
+            best = "best" if "best" in checkpoints else checkpoints[-1]
+            last = "last" if "last" in checkpoints else checkpoints[-1]
+        kept[CHECKPOINTS_INDEX] = checkpoints_index(best, last)
+    return deterministic_tar_gz(kept)
+
+
+def build_logs_archive(files: Mapping[str, bytes]) -> bytes:
+    """Training or evaluation logs (metrics JSON, sim-trace CSVs, logs) as a tar.gz."""
+    if not files:
+        raise ExportError("there are no logs to download yet")
+    return deterministic_tar_gz(files)

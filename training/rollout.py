@@ -1,0 +1,235 @@
+"""What runs next to the simulator: env construction from a JSON-able spec, per-episode
+bookkeeping (DeepRacer's TrainingMetrics entries), compact per-step info, and live frames.
+
+The same code runs in the trainer's own process (trusted rewards: tests, benchmarks) and inside
+a sandboxed rollout worker (users' rewards, see :mod:`training.vecenv`), so what crosses the
+process boundary is plain JSON plus numpy arrays.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from racing.env import RacingEnv
+from racing.rules import STATUS_LABELS, RaceRules, Status
+from racing.tracks import TrackCatalog
+
+FRAME_INTERVAL_S = 1 / 15
+"""Live video: at most 15 frames per second."""
+JPEG_QUALITY = 80
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """Everything needed to build the same :class:`RacingEnv` in any process (JSON-able)."""
+
+    track: str
+    track_dirs: tuple[str, ...] = ()
+    direction: str = "native"
+    action_space: list | dict | None = None
+    sensors: tuple[str, ...] = ("FRONT_FACING_CAMERA",)
+    start: str = "round_robin"
+    alternate_direction: bool = False
+    rules: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        data = asdict(self)
+        data["track_dirs"] = list(self.track_dirs)
+        data["sensors"] = list(self.sensors)
+        return data
+
+    @classmethod
+    def from_json(cls, data: dict) -> EnvSpec:
+        data = dict(data)
+        data["track_dirs"] = tuple(data.get("track_dirs", ()))
+        data["sensors"] = tuple(data.get("sensors", ("FRONT_FACING_CAMERA",)))
+        return cls(**data)
+
+    def make(
+        self, reward_function: Callable[[dict], float] | None = None, **overrides
+    ) -> RacingEnv:
+        """A new env; ``overrides`` replace keyword arguments (e.g. ``start``, ``rules``)."""
+        track = TrackCatalog(list(self.track_dirs)).load(self.track)
+        kwargs: dict[str, Any] = {
+            "direction": self.direction,
+            "action_space": self.action_space,
+            "sensors": self.sensors,
+            "start": self.start,
+            "alternate_direction": self.alternate_direction,
+            "rules": RaceRules(**self.rules),
+            "reward_function": reward_function,
+        }
+        kwargs.update(overrides)
+        return RacingEnv(track, **kwargs)
+
+
+def episode_entry(
+    env: RacingEnv, *, total_reward: float, phase: str, episode: int, status: str, start_wall: float
+) -> dict:
+    """One ``TrainingMetrics.json`` entry (DeepRacer's fields) for a finished episode."""
+    now = time.time()
+    return {
+        "reward_score": int(round(total_reward)),
+        "metric_time": int(now * 1000),
+        "start_time": int(start_wall * 1000),
+        "elapsed_time_in_milliseconds": int((now - start_wall) * 1000),
+        "episode": episode,
+        "trial": episode + 1,
+        "phase": phase,
+        "completion_percentage": int(env.tracker.progress)
+        if status != Status.LAP_COMPLETE.value
+        else 100,
+        "episode_status": STATUS_LABELS[Status(status)],
+        "laps": len(env.tracker.laps),
+        "steps": env.tracker.steps,
+        "progress": round(env.tracker.progress, 3),
+        "total_reward": total_reward,
+    }
+
+
+class EpisodeBook:
+    """Per-env running totals, turned into a metrics entry when an episode ends."""
+
+    def __init__(self, env: RacingEnv, phase: str = "training") -> None:
+        self.env = env
+        self.phase = phase
+        self.episodes = 0
+        self.reward = 0.0
+        self.start_wall = time.time()
+
+    def reset(self) -> None:
+        self.reward = 0.0
+        self.start_wall = time.time()
+
+    def step(self, reward: float, info: dict, done: bool) -> dict | None:
+        self.reward += reward
+        if not done:
+            return None
+        entry = episode_entry(
+            self.env,
+            total_reward=self.reward,
+            phase=self.phase,
+            episode=self.episodes,
+            status=info["status"],
+            start_wall=self.start_wall,
+        )
+        self.episodes += 1
+        return entry
+
+
+def compact_info(info: dict, *, truncated: bool = False) -> dict:
+    """The part of an env step's info that leaves the worker: small and JSON-able."""
+    trace = info.get("trace")
+    out = {
+        "status": info["status"],
+        "progress": info["progress"],
+        "lap": info.get("lap", 1),
+        "trace": list(trace) if trace is not None else None,
+    }
+    if truncated:
+        out["TimeLimit.truncated"] = True
+    if info.get("lap_finished"):
+        out["lap_times"] = [lap.time_s for lap in info["laps"]]
+    return out
+
+
+class FrameGrabber:
+    """Encodes JPEG frames of one env (the car's camera and the chase view), 15 fps at most."""
+
+    def __init__(self, env: RacingEnv, interval_s: float = FRAME_INTERVAL_S) -> None:
+        self.env = env
+        self.interval_s = interval_s
+        self._last = 0.0
+        self._chase = None
+
+    def grab(self, observation: np.ndarray) -> dict | None:
+        now = time.monotonic()
+        if now - self._last < self.interval_s:
+            return None
+        self._last = now
+        if self._chase is None:
+            from racing.sensors import ground_for
+            from racing.views import ChaseView
+
+            self._chase = ChaseView(ground_for(self.env.track, resolution=0.01, rgb=True))
+        camera = observation[..., 0]
+        camera = cv2.resize(camera, (320, 240), interpolation=cv2.INTER_NEAREST)
+        chase = cv2.cvtColor(self._chase.render(self.env.pose, self.env.objects), cv2.COLOR_RGB2BGR)
+        params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]
+        ok1, cam_jpg = cv2.imencode(".jpg", camera, params)
+        ok2, chase_jpg = cv2.imencode(".jpg", chase, params)
+        if not (ok1 and ok2):
+            return None
+        return {
+            "camera": np.frombuffer(cam_jpg.tobytes(), dtype=np.uint8),
+            "chase": np.frombuffer(chase_jpg.tobytes(), dtype=np.uint8),
+            "progress": round(self.env.tracker.progress, 2),
+            "status": self.env.params.get("is_offtrack") and "off_track" or "in_progress",
+        }
+
+
+def _safe_options(options: object) -> dict:
+    """Only the reset options the env knows, as numbers."""
+    if not isinstance(options, dict):
+        return {}
+    keys = ("start_progress", "offset", "heading_offset_deg")
+    return {k: float(options[k]) for k in keys if isinstance(options.get(k), int | float)}
+
+
+class EnvRunner:
+    """Steps a group of envs with auto-reset, as a SB3 VecEnv worker does.
+
+    Returns stacked observations, rewards, dones and compact infos; finished episodes carry
+    ``terminal_observation`` and ``episode_entry`` in their info.
+    """
+
+    def __init__(self, envs: list[RacingEnv], phase: str = "training") -> None:
+        self.envs = envs
+        self.books = [EpisodeBook(env, phase) for env in envs]
+        self.frames = FrameGrabber(envs[0])
+        self.want_frames = False
+
+    def reset(self, seeds: list[int | None], options: list[dict] | None = None) -> np.ndarray:
+        obs = []
+        options = options or [{}] * len(self.envs)
+        for env, book, seed, opts in zip(self.envs, self.books, seeds, options, strict=True):
+            o, _ = env.reset(seed=seed, options=_safe_options(opts))
+            book.reset()
+            obs.append(o)
+        return np.stack(obs)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+        n = len(self.envs)
+        obs_out, rewards, dones, infos = [], np.zeros(n, np.float32), np.zeros(n, bool), []
+        for i, (env, book) in enumerate(zip(self.envs, self.books, strict=True)):
+            action = actions[i]
+            if env.actions.kind == "discrete":
+                action = int(action)
+            obs, reward, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+            compact = compact_info(info, truncated=truncated and not terminated)
+            entry = book.step(reward, info, done)
+            if i == 0 and self.want_frames:
+                frame = self.frames.grab(obs)
+                if frame is not None:
+                    compact["frame"] = frame
+            if done:
+                compact["terminal_observation"] = obs
+                compact["episode_entry"] = entry
+                obs, _ = env.reset()
+                book.reset()
+            obs_out.append(obs)
+            rewards[i] = reward
+            dones[i] = done
+            infos.append(compact)
+        return np.stack(obs_out), rewards, dones, infos
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()

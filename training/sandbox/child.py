@@ -1,0 +1,209 @@
+"""Entry point of a sandbox child process (``python -E -s -B -c BOOT ...``).
+
+Sequence: clean environment, close inherited fds, new namespaces (while single-threaded),
+read the job, import the allowed libraries and the target, run the target's ``prepare``,
+apply rlimits, no_new_privs, Landlock and seccomp, then load the user's module and run the
+target with the guarded reward callable. Nothing here trusts the user code: after it has run,
+the parent treats everything this process says as untrusted.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib
+import mmap
+import os
+import signal
+import time
+from collections.abc import Callable
+from typing import Any
+
+from training.sandbox import landlock, lockdown
+from training.sandbox.errors import RewardFunctionError
+from training.sandbox.guard import RewardCallable, install_output_capture, load_reward_function
+from training.sandbox.limits import SandboxLimits
+from training.sandbox.protocol import read_message_blocking, write_message
+
+PR_SET_PDEATHSIG = 1
+HEARTBEAT_BYTES = 4096
+#: Imported before lock-down so that user imports are served from memory.
+PREIMPORTS = ("math", "random", "numpy", "scipy", "shapely", "shapely.geometry", "scipy.spatial")
+#: Also imported when Landlock is missing (then every open() is refused after lock-down).
+PREIMPORTS_NO_LANDLOCK = (
+    "scipy.interpolate",
+    "scipy.optimize",
+    "scipy.signal",
+    "scipy.stats",
+    "scipy.special",
+    "scipy.linalg",
+    "shapely.ops",
+    "shapely.affinity",
+)
+
+
+def resolve(dotted: str) -> Callable[..., Any]:
+    """``"package.module:function"`` -> the function."""
+    module_name, _, attr = dotted.partition(":")
+    obj: Any = importlib.import_module(module_name)
+    for part in attr.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+class SandboxContext:
+    """What a target function receives: ``reward`` (the guarded callable), ``args``,
+    ``prepared`` (what the prepare hook returned), ``layers``, and a channel to the parent."""
+
+    def __init__(
+        self,
+        *,
+        reward: RewardCallable,
+        args: Any,
+        prepared: Any,
+        layers: dict[str, str],
+        ctl_in: int,
+        out: int,
+        output: Any,
+        source: str = "",
+        python_guards: bool = True,
+    ) -> None:
+        self.reward = reward
+        self._source = source
+        self._guards = python_guards
+        self.args = args
+        self.prepared = prepared
+        self.layers = layers
+        self._in = ctl_in
+        self._out = out
+        self._output = output
+
+    def send(self, value: Any) -> None:
+        """Send a message the parent receives with ``SandboxProcess.recv``."""
+        write_message(self._out, {"kind": "message", "value": value})
+
+    def recv(self) -> Any:
+        """Next value from the parent's ``send``; None when the parent closed the channel."""
+        try:
+            msg = read_message_blocking(self._in)
+        except EOFError:
+            return None
+        return msg.get("value")
+
+    def take_output(self) -> str:
+        """The user's captured ``print`` output since the last call."""
+        return self._output.take()
+
+    def new_reward(self) -> RewardCallable:
+        """Another, independent instance of the user's module (its own module-level state),
+        guarded like ``reward``: one per simulated car, as DeepRacer runs one car per process.
+        Raises RewardFunctionError if the module fails to load."""
+        hb = self.reward._hb
+        hb[1] = time.monotonic_ns()
+        try:
+            fn = load_reward_function(self._source, python_guards=self._guards)
+        finally:
+            hb[1] = 0
+        return RewardCallable(fn, hb)
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
+def main(argv: list[str]) -> None:
+    out = int(argv[1])
+    try:
+        _main(argv)
+    except BaseException as exc:  # noqa: BLE001 - a failure before the user code ran
+        try:
+            write_message(out, {"kind": "failure", "message": f"{type(exc).__name__}: {exc}"})
+        finally:
+            os._exit(3)
+
+
+def _main(argv: list[str]) -> None:
+    ctl_in, out, hb_fd, parent_pid = (int(a) for a in argv)
+    _die_with_parent(parent_pid)
+    layers = {"environment": lockdown.ACTIVE}
+    lockdown.clean_environment()
+    lockdown.close_inherited_fds({ctl_in, out, hb_fd})
+    layers["file_descriptors"] = lockdown.ACTIVE
+    job = read_message_blocking(ctl_in)
+    skip = frozenset(job.get("disabled_layers") or ())
+    if "namespaces" in skip:
+        layers["namespaces"] = "disabled (test only)"
+    else:
+        ns = lockdown.unshare_namespaces()
+        layers["namespaces"] = lockdown.ACTIVE if ns is None else f"unavailable: {ns}"
+    limits = SandboxLimits.from_dict(job["limits"])
+    hb_map = mmap.mmap(hb_fd, HEARTBEAT_BYTES)
+    os.close(hb_fd)
+    heartbeat = memoryview(hb_map).cast("q")
+    has_landlock = landlock.abi_version() > 0 and "landlock" not in skip
+    for name in PREIMPORTS + (() if has_landlock else PREIMPORTS_NO_LANDLOCK):
+        importlib.import_module(name)
+    target = resolve(job["target"])
+    prepared = resolve(job["prepare"])(job["args"]) if job.get("prepare") else None
+    layers.update(
+        lockdown.apply_all(
+            cpu_seconds=limits.cpu_seconds,
+            memory_bytes=limits.memory_bytes,
+            open_files=limits.open_files,
+            allow_threads=limits.allow_threads,
+            read_paths=limits.read_paths,
+            skip=skip,
+        )
+    )
+    guards = bool(job.get("python_guards", True))
+    layers["python_guards"] = lockdown.ACTIVE if guards else "disabled (test only)"
+    output = install_output_capture(limits.max_output_chars)
+    heartbeat[0] = 0
+    heartbeat[1] = time.monotonic_ns()
+    try:
+        fn = load_reward_function(job["source"], python_guards=guards)
+    except RewardFunctionError as exc:
+        heartbeat[1] = 0
+        write_message(
+            out,
+            {"kind": "error", "error": exc.error.to_dict(), "step": None, "output": output.take()},
+        )
+        os._exit(0)
+    heartbeat[1] = 0
+    reward = RewardCallable(fn, heartbeat)
+    write_message(out, {"kind": "ready", "layers": layers})
+    ctx = SandboxContext(
+        reward=reward,
+        args=job["args"],
+        prepared=prepared,
+        layers=layers,
+        ctl_in=ctl_in,
+        out=out,
+        output=output,
+        source=job["source"],
+        python_guards=guards,
+    )
+    try:
+        value = target(ctx)
+        reply = {"kind": "result", "value": value, "output": output.take()}
+    except RewardFunctionError as exc:
+        reply = {
+            "kind": "error",
+            "error": exc.error.to_dict(),
+            "step": exc.step,
+            "output": output.take(),
+        }
+    except BaseException as exc:  # noqa: BLE001 - report, then exit
+        reply = {"kind": "failure", "message": f"{type(exc).__name__}: {str(exc)[:500]}"}
+    try:
+        write_message(out, reply)
+    finally:
+        os._exit(0)
+
+
+#: Run by the child interpreter; argv: ctl_in out heartbeat parent_pid package_root.
+BOOT = (
+    "import sys; sys.path[:] = [p for p in sys.path if p]; sys.path.insert(0, sys.argv[5]); "
+    "from training.sandbox.child import main; main(sys.argv[1:5])"
+)

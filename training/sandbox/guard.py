@@ -1,0 +1,250 @@
+"""Python-level guard inside the sandbox child: restricted builtins and imports, loading the
+user's module, and the per-call wrapper around ``reward_function``.
+
+This layer gives good error messages and stops the obvious; it is not the boundary (the OS
+layers in :mod:`training.sandbox.lockdown` are). It runs only in the child.
+"""
+
+from __future__ import annotations
+
+import builtins
+import io
+import sys
+import time
+import traceback
+import types
+from collections.abc import Callable
+from typing import Any
+
+from training.sandbox.errors import USER_FILENAME, RewardError, RewardFunctionError
+from training.sandbox.policy import FORBIDDEN_NAMES, attribute_refused, module_refused
+from training.sandbox.static import FUNCTION_NAME, check_source
+
+MAX_REWARD = 1e5
+_monotonic_ns = time.monotonic_ns
+
+
+class BoundedOutput(io.TextIOBase):
+    """A text sink that keeps the first ``limit`` characters and counts the rest (print floods
+    cost CPU time, never memory or a blocked pipe)."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.parts: list[str] = []
+        self.kept = 0
+        self.dropped = 0
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, s: str) -> int:
+        n = len(s)
+        room = self.limit - self.kept
+        if room > 0:
+            piece = s[:room]
+            self.parts.append(piece)
+            self.kept += len(piece)
+        self.dropped += max(0, n - max(room, 0))
+        return n
+
+    def take(self) -> str:
+        text = "".join(self.parts)
+        if self.dropped:
+            text += f"\n[... {self.dropped} more characters of output dropped]\n"
+        self.parts, self.kept, self.dropped = [], 0, 0
+        return text
+
+
+def _refuse(kind: str, message: str) -> RewardFunctionError:
+    return RewardFunctionError(RewardError(kind, message))  # type: ignore[arg-type]
+
+
+def _restricted_import(name: str, globals=None, locals=None, fromlist=(), level=0):  # noqa: ANN001,ANN202
+    if level or module_refused(name):
+        raise ImportError(f"import of '{name}' is not allowed")
+    for item in fromlist or ():
+        if item == "*" or attribute_refused(item) or module_refused(f"{name}.{item}"):
+            if item == "*" and name.split(".")[0] in ("math", "random"):
+                continue
+            raise ImportError(f"import of '{name}.{item}' is not allowed")
+    return builtins.__import__(name, globals, locals, fromlist, 0)
+
+
+def _check_attr(name: object) -> None:
+    if not isinstance(name, str) or attribute_refused(name):
+        raise AttributeError(f"access to attribute '{name}' is not allowed")
+
+
+def _getattr(obj: object, name: str, *default: object) -> object:
+    _check_attr(name)
+    return getattr(obj, name, *default)
+
+
+def _hasattr(obj: object, name: str) -> bool:
+    _check_attr(name)
+    return hasattr(obj, name)
+
+
+def _setattr(obj: object, name: str, value: object) -> None:
+    _check_attr(name)
+    setattr(obj, name, value)
+
+
+def _delattr(obj: object, name: str) -> None:
+    _check_attr(name)
+    delattr(obj, name)
+
+
+def restricted_builtins() -> dict[str, Any]:
+    """Builtins for user code: no open/eval/exec/compile/input/..., guarded getattr family,
+    and an ``__import__`` that serves only the allowed modules."""
+    allowed = {
+        k: v
+        for k, v in vars(builtins).items()
+        if k not in FORBIDDEN_NAMES and not k.startswith("_")
+    }
+    allowed.update(
+        __import__=_restricted_import,
+        __build_class__=builtins.__build_class__,
+        __name__="builtins",
+        getattr=_getattr,
+        hasattr=_hasattr,
+        setattr=_setattr,
+        delattr=_delattr,
+    )
+    return allowed
+
+
+def user_error(exc: BaseException, step: int | None, phase: str) -> RewardError:
+    """TEST_FAILURE for an exception raised by user code, placed at the last frame of the
+    user's file (line and 1-based column)."""
+    line = column = None
+    try:
+        for frame in traceback.extract_tb(exc.__traceback__):
+            if frame.filename == USER_FILENAME:
+                line = frame.lineno
+                column = frame.colno + 1 if frame.colno is not None else None
+    except Exception:  # noqa: BLE001 - a hostile traceback must not break reporting
+        pass
+    try:
+        detail = str(exc)[:500]
+    except BaseException:  # noqa: BLE001
+        detail = "<unprintable>"
+    name = type(exc).__name__ if type(exc).__module__ == "builtins" else "exception"
+    where = f" at step {step}" if step is not None else ""
+    text = f"{phase} raised {name}{where}: {detail}" if detail else f"{phase} raised {name}{where}"
+    return RewardError("TEST_FAILURE", text, line, column)
+
+
+def load_reward_function(
+    source: str, *, python_guards: bool = True
+) -> Callable[[dict[str, Any]], Any]:
+    """Compile and run the user's module; return its ``reward_function``.
+
+    Raises RewardFunctionError for static errors or an exception at module level.
+    ``python_guards=False`` skips the static check and restricted builtins; only tests use it,
+    to show that the OS layers hold on their own.
+    """
+    if python_guards:
+        errors = check_source(source)
+        if errors:
+            raise RewardFunctionError(errors[0])
+    try:
+        code = compile(source, USER_FILENAME, "exec", dont_inherit=True)
+    except (SyntaxError, ValueError) as exc:
+        line = getattr(exc, "lineno", None)
+        raise RewardFunctionError(RewardError("SYNTAX_ERROR", str(exc), line)) from None
+    module = types.ModuleType("reward_function")
+    module.__file__ = USER_FILENAME
+    if python_guards:
+        module.__dict__["__builtins__"] = restricted_builtins()
+    try:
+        exec(code, module.__dict__)
+    except BaseException as exc:  # noqa: BLE001 - SystemExit & co. from user code included
+        err = user_error(exc, None, "loading the module")
+        if isinstance(exc, ImportError):
+            err = RewardError("IMPORT_ERROR", str(exc)[:500], err.line, err.column)
+        raise RewardFunctionError(err) from None
+    fn = module.__dict__.get(FUNCTION_NAME)
+    if not callable(fn):
+        raise RewardFunctionError(RewardError("SYNTAX_ERROR", f"no function '{FUNCTION_NAME}'"))
+    return fn
+
+
+def copy_params(params: dict[str, Any]) -> dict[str, Any]:
+    """A copy the user may mutate freely: new dict, new lists (elements are immutable tuples,
+    numbers, bools; inner lists are turned into tuples)."""
+    out = {}
+    for k, v in params.items():
+        if type(v) is list:
+            v = [tuple(e) for e in v] if v and type(v[0]) is list else v.copy()
+        out[k] = v
+    return out
+
+
+def _bad_value(value: object, step: int) -> RewardError:
+    t = type(value)
+    shown = f"an object of type {t.__name__}"
+    if t in (float, int, bool, str, type(None)) or t.__module__ == "numpy":
+        try:
+            shown = repr(value)
+            shown = shown if len(shown) <= 60 else shown[:60] + "..."
+        except ValueError:  # an int too long to print
+            shown = "a number too large"
+    return RewardError(
+        "TEST_FAILURE",
+        f"reward_function returned {shown} at step {step}; it must return a finite number "
+        f"in [-{MAX_REWARD:.0f}, {MAX_REWARD:.0f}]",
+    )
+
+
+class RewardCallable:
+    """``reward(params) -> float``: the guarded call used on every simulation step.
+
+    Writes the step number and call start time into ``heartbeat`` (shared with the parent's
+    watchdog, which kills the process when a call overruns), passes a copy of ``params``,
+    checks the result, and turns any failure into RewardFunctionError with a TEST_FAILURE.
+    """
+
+    def __init__(self, fn: Callable[[dict[str, Any]], Any], heartbeat: memoryview) -> None:
+        import numpy
+
+        self._fn = fn
+        self._hb = heartbeat
+        self._np_number = (numpy.integer, numpy.floating)
+        self.step = 0
+
+    def __call__(self, params: dict[str, Any]) -> float:
+        self.step += 1
+        hb = self._hb
+        hb[0] = self.step
+        hb[1] = _monotonic_ns()
+        try:
+            value = self._fn(copy_params(params))
+            t = type(value)
+            if t is float:
+                result = value
+            elif t is int or t is bool or isinstance(value, self._np_number):
+                try:
+                    result = float(value)
+                except OverflowError:
+                    raise RewardFunctionError(_bad_value(value, self.step), self.step) from None
+            else:
+                raise RewardFunctionError(_bad_value(value, self.step), self.step)
+            if not -MAX_REWARD <= result <= MAX_REWARD:  # NaN fails both comparisons
+                raise RewardFunctionError(_bad_value(value, self.step), self.step)
+        except RewardFunctionError:
+            hb[1] = 0
+            raise
+        except BaseException as exc:  # noqa: BLE001 - SystemExit, KeyboardInterrupt too
+            err = user_error(exc, self.step, "reward_function")
+            hb[1] = 0
+            raise RewardFunctionError(err, self.step) from None
+        hb[1] = 0
+        return result
+
+
+def install_output_capture(limit: int) -> BoundedOutput:
+    sink = BoundedOutput(limit)
+    sys.stdout = sys.stderr = sink  # type: ignore[assignment]
+    return sink

@@ -1,0 +1,190 @@
+"""The OS layers a sandbox child applies to itself, in order, each independent of the others.
+
+Order matters: namespaces need a single-threaded process (first, before any import); the
+rlimit on memory is sized after the imports; no_new_privs must precede Landlock and seccomp;
+seccomp comes last because it refuses the syscalls the earlier layers use (unshare, open for
+write). Every function returns None when its layer is active, else the reason it is not; the
+child reports the lot to the parent (:class:`LayerReport`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import resource
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from training.sandbox import landlock, seccomp
+
+ACTIVE = "active"
+CLONE_NEWIPC = 0x08000000
+CLONE_NEWUSER = 0x10000000
+CLONE_NEWNET = 0x40000000
+PR_SET_NO_NEW_PRIVS = 38
+PR_SET_DUMPABLE = 4
+
+#: The only environment a sandbox child ever has.
+CHILD_ENV: dict[str, str] = {
+    "PATH": "/usr/bin:/bin",
+    "LANG": "C.UTF-8",
+    "PYTHONHASHSEED": "0",
+    "PYTHONDONTWRITEBYTECODE": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "OMP_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+}
+
+LayerReport = dict[str, str]
+
+
+def _libc() -> ctypes.CDLL:
+    return ctypes.CDLL(None, use_errno=True)
+
+
+def clean_environment() -> str | None:
+    """Drop every environment variable except the fixed, secret-free :data:`CHILD_ENV`."""
+    os.environ.clear()
+    os.environ.update(CHILD_ENV)
+    return None
+
+
+def close_inherited_fds(keep: set[int]) -> str | None:
+    """Point 0/1/2 at /dev/null and close every other descriptor not in ``keep``."""
+    null = os.open(os.devnull, os.O_RDWR)
+    for fd in (0, 1, 2):
+        os.dup2(null, fd)
+    if null > 2:
+        os.close(null)
+    for name in os.listdir("/proc/self/fd") if os.path.isdir("/proc/self/fd") else []:
+        fd = int(name)
+        if fd > 2 and fd not in keep:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+    return None
+
+
+def unshare_namespaces() -> str | None:
+    """New network (no interfaces), IPC and, where possible, user namespace.
+
+    Unprivileged users need the user namespace to get the others; root gets the network and
+    IPC namespaces even where user namespaces are disabled.
+    """
+    libc = _libc()
+    if libc.unshare(CLONE_NEWUSER | CLONE_NEWNET | CLONE_NEWIPC) == 0:
+        return None
+    first = os.strerror(ctypes.get_errno())
+    if libc.unshare(CLONE_NEWNET | CLONE_NEWIPC) == 0:
+        return None
+    return f"unshare failed: {first}"
+
+
+def set_rlimits(
+    *, cpu_seconds: int, memory_bytes: int, open_files: int, threads: bool
+) -> str | None:
+    """CPU, address space (current size + ``memory_bytes``), files, no file writes, no cores,
+    and no new processes (RLIMIT_NPROC 0; root in the initial user namespace is exempt)."""
+    problems = []
+    with open("/proc/self/statm") as f:
+        vm_bytes = int(f.read().split()[0]) * resource.getpagesize()
+    wanted = [
+        (resource.RLIMIT_CPU, (cpu_seconds, cpu_seconds + 1)),
+        (resource.RLIMIT_AS, (vm_bytes + memory_bytes,) * 2),
+        (resource.RLIMIT_NOFILE, (open_files,) * 2),
+        (resource.RLIMIT_FSIZE, (0, 0)),
+        (resource.RLIMIT_CORE, (0, 0)),
+        (resource.RLIMIT_MSGQUEUE, (0, 0)),
+    ]
+    if not threads:
+        wanted.append((resource.RLIMIT_NPROC, (0, 0)))
+    for which, (soft, hard) in wanted:
+        try:
+            _, old_hard = resource.getrlimit(which)
+            if old_hard != resource.RLIM_INFINITY:
+                hard = min(hard, old_hard)
+                soft = min(soft, hard)
+            resource.setrlimit(which, (soft, hard))
+        except (ValueError, OSError) as exc:
+            problems.append(f"{which}: {exc}")
+    return "; ".join(problems) or None
+
+
+def set_no_new_privs() -> str | None:
+    libc = _libc()
+    if libc.prctl(PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) != 0:
+        return f"prctl(NO_NEW_PRIVS) failed: {os.strerror(ctypes.get_errno())}"
+    libc.prctl(PR_SET_DUMPABLE, 0, 0, 0, 0)  # no ptrace / /proc/<pid>/mem of us by others
+    return None
+
+
+def default_read_paths(extra: tuple[str, ...] = ()) -> list[str]:
+    """Directories a locked-down child may read: the Python installation and its packages,
+    our own packages, system libraries (for late imports of extension modules), and ``extra``."""
+    here = Path(__file__).resolve()
+    candidates = [sys.prefix, sys.base_prefix, sys.exec_prefix, sys.base_exec_prefix]
+    candidates += [p for p in sys.path if p and "site-packages" in p or p.endswith("lib-dynload")]
+    candidates += [str(here.parents[1]), str(here.parents[2] / "racing")]
+    candidates += ["/usr/lib", "/usr/lib64", "/lib", "/lib64", "/usr/local/lib"]
+    candidates += list(extra)
+    seen: list[str] = []
+    for path in candidates:
+        real = os.path.realpath(path)
+        if os.path.exists(real) and real not in seen and real != "/":
+            seen.append(real)
+    return seen
+
+
+def apply_all(
+    *,
+    cpu_seconds: int,
+    memory_bytes: int,
+    open_files: int,
+    allow_threads: bool,
+    read_paths: tuple[str, ...],
+    skip: frozenset[str] = frozenset(),
+) -> LayerReport:
+    """Apply rlimits, no_new_privs, Landlock, seccomp (after imports); report each.
+
+    ``skip`` names layers not to apply (tests use it to show each layer holds alone).
+    """
+    report: LayerReport = {}
+
+    def record(name: str, reason: str | None) -> None:
+        report[name] = ACTIVE if reason is None else f"unavailable: {reason}"
+
+    def run(name: str, fn: Callable[[], str | None]) -> str | None:
+        if name in skip:
+            report[name] = "disabled (test only)"
+            return "disabled"
+        reason = fn()
+        record(name, reason)
+        return reason
+
+    run(
+        "rlimits",
+        lambda: set_rlimits(
+            cpu_seconds=cpu_seconds,
+            memory_bytes=memory_bytes,
+            open_files=open_files,
+            threads=allow_threads,
+        ),
+    )
+    nnp = set_no_new_privs()
+    record("no_new_privs", nnp)
+    if nnp is None:
+        paths = default_read_paths(read_paths)
+        ll = run("landlock", lambda: landlock.restrict_to_read_only(paths))
+        # Without Landlock nothing limits what is read: refuse every open() instead.
+        run(
+            "seccomp",
+            lambda: seccomp.install_filter(allow_threads=allow_threads, deny_open=ll is not None),
+        )
+        if ll is not None and report.get("seccomp") == ACTIVE:
+            report["seccomp"] = "active (all opens refused: no Landlock)"
+    else:
+        record("landlock", "needs no_new_privs")
+        record("seccomp", "needs no_new_privs")
+    return report

@@ -1,0 +1,364 @@
+"""Parent side: start a sandbox child, talk to it, watch it, and clean up after it.
+
+The child is a fresh interpreter (never a fork of the caller, whose memory may hold secrets)
+with an empty environment. A watchdog thread in the parent reads the heartbeat the child's
+reward callable writes into shared memory and kills the child when a call overruns its
+wall-clock limit; signals inside the child are not relied upon.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import mmap
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from training.sandbox.cgroup import PidsCgroup
+from training.sandbox.child import BOOT, HEARTBEAT_BYTES
+from training.sandbox.errors import (
+    RewardError,
+    RewardFunctionError,
+    SandboxCrashed,
+    SandboxError,
+    SandboxProtocolError,
+    SandboxStartError,
+    SandboxTimeout,
+)
+from training.sandbox.limits import SandboxLimits
+from training.sandbox.lockdown import CHILD_ENV
+from training.sandbox.protocol import FrameReader, ProtocolError, encode
+
+PACKAGE_ROOT = str(Path(__file__).resolve().parents[2])
+WATCHDOG_PERIOD_S = 0.02
+
+_SIGNAL_WORDS = {
+    signal.SIGKILL: "was killed (SIGKILL): the CPU-time limit, or the system ran out of memory",
+    signal.SIGXCPU: "used up its CPU-time limit",
+    signal.SIGXFSZ: "tried to write a file",
+    signal.SIGSEGV: "crashed (segmentation fault), e.g. from recursion that is too deep",
+    signal.SIGSYS: "made a forbidden system call",
+    signal.SIGABRT: "aborted",
+    signal.SIGBUS: "crashed (bus error)",
+}
+
+
+def _state(reason: str | None) -> str:
+    return "active" if reason is None else f"unavailable: {reason}"
+
+
+@dataclass(frozen=True)
+class SandboxMessage:
+    """What :meth:`SandboxProcess.recv` returns: a ``message`` the target sent with
+    ``ctx.send``, or the ``result`` the target returned (then the child has finished)."""
+
+    kind: str
+    value: Any
+    output: str = ""
+
+
+class SandboxProcess:
+    """One sandboxed child running ``target`` (``"module:function"``) with the user's reward.
+
+    ``start()`` returns the report of isolation layers; ``send``/``recv`` exchange messages;
+    ``close()`` always leaves no process, thread or descriptor behind.
+    ``python_guards=False`` and ``disabled_layers`` (names from the layer report) switch
+    layers off; only tests use them, to show that the remaining layers hold. Errors are raised as
+    :class:`RewardFunctionError` (the user's code failed) or :class:`SandboxCrashed` and its
+    subclasses (the child died, hung or misbehaved), each with a message in plain words.
+    """
+
+    def __init__(
+        self,
+        *,
+        target: str,
+        reward_source: str,
+        args: Any = None,
+        limits: SandboxLimits | None = None,
+        prepare: str | None = None,
+        python_guards: bool = True,
+        disabled_layers: tuple[str, ...] = (),
+    ) -> None:
+        self.target = target
+        self.disabled_layers = disabled_layers
+        self.source = reward_source
+        self.args = args
+        self.limits = limits or SandboxLimits()
+        self.prepare = prepare
+        self.python_guards = python_guards
+        self.layers: dict[str, str] = {}
+        self.output = ""
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._kill_reason: str | None = None
+        self._stop = threading.Event()
+        self._watchdog: threading.Thread | None = None
+        self._finished = False
+
+    # -- life cycle --------------------------------------------------------------------------
+    def start(self) -> dict[str, str]:
+        hb_fd = os.memfd_create("racecraft-sandbox-heartbeat", os.MFD_CLOEXEC)
+        os.ftruncate(hb_fd, HEARTBEAT_BYTES)
+        self._hb_map = mmap.mmap(hb_fd, HEARTBEAT_BYTES)
+        self._hb = memoryview(self._hb_map).cast("q")
+        to_child_r, self._to_child = os.pipe2(os.O_CLOEXEC)
+        self._from_child, from_child_w = os.pipe2(os.O_CLOEXEC)
+        child_fds = (to_child_r, from_child_w, hb_fd)
+        try:
+            self._proc = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-E",
+                    "-s",
+                    "-B",
+                    "-c",
+                    BOOT,
+                    str(to_child_r),
+                    str(from_child_w),
+                    str(hb_fd),
+                    str(os.getpid()),
+                    PACKAGE_ROOT,
+                ],
+                env=dict(CHILD_ENV),
+                cwd="/",
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                pass_fds=child_fds,
+                close_fds=True,
+                start_new_session=True,
+            )
+        except OSError as exc:
+            self._close_fds()
+            raise SandboxStartError(f"the sandbox process could not be started: {exc}") from exc
+        finally:
+            for fd in child_fds:
+                os.close(fd)
+        # Threads count as pids: the interpreter's main thread, plus room when allowed.
+        self._cgroup = PidsCgroup(64 if self.limits.allow_threads else 1)
+        cgroup_state = (
+            "disabled (test only)"
+            if "cgroup_pids" in self.disabled_layers
+            else _state(self._cgroup.confine(self._proc.pid))
+        )
+        self._reader = FrameReader(self._from_child, self.limits.max_message_bytes)
+        self._watchdog = threading.Thread(target=self._watch, name="sandbox-watchdog", daemon=True)
+        self._watchdog.start()
+        job = {
+            "target": self.target, "prepare": self.prepare, "args": self.args,
+            "limits": self.limits.to_dict(), "source": self.source,
+            "python_guards": self.python_guards, "disabled_layers": list(self.disabled_layers),
+        }  # fmt: skip
+        try:
+            self._write(job)
+            msg = self._next(self.limits.start_seconds, "starting")
+        except BaseException:
+            self.close()
+            raise
+        if msg.get("kind") != "ready":
+            self.close()
+            raise SandboxProtocolError("the sandbox did not start as expected")
+        layers = msg.get("layers")
+        self.layers = (
+            {str(k): str(v) for k, v in layers.items()} if isinstance(layers, dict) else {}
+        )
+        self.layers["cgroup_pids"] = cgroup_state
+        return self.layers
+
+    def close(self, grace_seconds: float = 0.0) -> None:
+        """Stop the child (after ``grace_seconds`` for a clean exit), reap it, stop the
+        watchdog, close descriptors. Safe to call more than once."""
+        proc = self._proc
+        if proc is not None and proc.poll() is None:
+            with contextlib.suppress(OSError):
+                os.close(self._to_child)
+                self._to_child = -1
+            try:
+                proc.wait(timeout=grace_seconds) if grace_seconds > 0 else None
+            except subprocess.TimeoutExpired:
+                pass
+            self._kill(None)
+        if proc is not None:
+            proc.wait()
+            self._cgroup.remove()
+        self._stop.set()
+        if self._watchdog is not None and self._watchdog is not threading.current_thread():
+            self._watchdog.join()
+        self._close_fds()
+
+    def __enter__(self) -> SandboxProcess:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def pid(self) -> int | None:
+        return self._proc.pid if self._proc else None
+
+    # -- messages ----------------------------------------------------------------------------
+    def send(self, value: Any) -> None:
+        """Send ``value`` to the target's ``ctx.recv()``."""
+        try:
+            self._write({"value": value})
+        except OSError:
+            self._raise_dead("receiving a message")
+
+    def recv(self, timeout: float | None = None) -> SandboxMessage:
+        """Next message from the child; raises on errors, death or ``timeout`` seconds."""
+        if self._finished:
+            raise SandboxError("the sandboxed target has already finished")
+        msg = self._next(timeout, "running")
+        kind = msg.get("kind")
+        if kind == "message":
+            return SandboxMessage("message", msg.get("value"))
+        if kind == "result":
+            self._finished = True
+            self.output = str(msg.get("output", ""))
+            return SandboxMessage("result", msg.get("value"), self.output)
+        self._kill(None)
+        raise SandboxProtocolError("the sandbox sent a message of an unknown kind")
+
+    # -- internals ---------------------------------------------------------------------------
+    def _write(self, obj: Any) -> None:
+        data = memoryview(encode(obj))
+        while data:
+            n = os.write(self._to_child, data)
+            data = data[n:]
+
+    def _next(self, timeout: float | None, doing: str) -> dict[str, Any]:
+        try:
+            msg = self._reader.read(timeout)
+        except TimeoutError:
+            self._kill(f"it gave no answer within {timeout:g} s while {doing}")
+            raise SandboxTimeout(self._describe_death()) from None
+        except EOFError:
+            self._raise_dead(doing)
+        except ProtocolError as exc:
+            self._kill(f"it sent malformed data ({exc})")
+            raise SandboxProtocolError(self._describe_death()) from None
+        if not isinstance(msg, dict):
+            self._kill("it sent malformed data")
+            raise SandboxProtocolError(self._describe_death())
+        kind = msg.get("kind")
+        if kind == "error":
+            self.output = str(msg.get("output", ""))
+            err = RewardError.from_dict(
+                msg.get("error") if isinstance(msg.get("error"), dict) else {}
+            )
+            step = msg.get("step")
+            self._finished = True
+            raise RewardFunctionError(err, step if type(step) is int else None)
+        if kind == "failure":
+            self._finished = True
+            raise SandboxCrashed(f"the sandbox failed: {str(msg.get('message'))[:500]}")
+        return msg
+
+    def _raise_dead(self, doing: str) -> None:
+        assert self._proc is not None
+        try:
+            self._proc.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            self._kill("it closed its channel but did not exit")
+        err = (
+            SandboxTimeout if self._kill_reason and "limit" in self._kill_reason else SandboxCrashed
+        )
+        raise err(self._describe_death())
+
+    def _describe_death(self) -> str:
+        proc = self._proc
+        code = proc.wait() if proc is not None else None
+        if self._kill_reason:
+            why = self._kill_reason
+        elif code is not None and code < 0:
+            sig = signal.Signals(-code)
+            why = _SIGNAL_WORDS.get(sig, f"was stopped by signal {sig.name}")
+        else:
+            why = f"exited unexpectedly (status {code})"
+        return f"The reward function's sandbox was stopped: {why}."
+
+    def _kill(self, reason: str | None) -> None:
+        if reason and not self._kill_reason:
+            self._kill_reason = reason
+        proc = self._proc
+        if proc is None or proc.returncode is not None:
+            return
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        with contextlib.suppress(ProcessLookupError):
+            proc.kill()
+
+    def _watch(self) -> None:
+        limit_ns = int(self.limits.per_call_seconds * 1e9)
+        proc = self._proc
+        assert proc is not None
+        while not self._stop.wait(WATCHDOG_PERIOD_S):
+            if proc.poll() is not None:
+                return
+            started = self._hb[1]
+            if started and time.monotonic_ns() - started > limit_ns:
+                step = self._hb[0]
+                what = f"reward_function at step {step}" if step else "loading the module"
+                self._kill(
+                    f"{what} ran longer than the {self.limits.per_call_seconds:g} s "
+                    "wall-clock limit per call"
+                )
+                return
+
+    def _close_fds(self) -> None:
+        for name in ("_to_child", "_from_child"):
+            fd = getattr(self, name, -1)
+            if fd >= 0:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+                setattr(self, name, -1)
+        hb = getattr(self, "_hb", None)
+        if hb is not None:
+            hb.release()
+            self._hb = None
+            self._hb_map.close()
+
+
+def run_sandboxed(
+    *,
+    target: str,
+    reward_source: str,
+    args: Any = None,
+    limits: SandboxLimits | None = None,
+    prepare: str | None = None,
+    on_message: Callable[[Any], None] | None = None,
+    timeout: float | None = None,
+    python_guards: bool = True,
+) -> Any:
+    """Run ``target(ctx)`` in a sandbox child and return what it returns.
+
+    Messages the target sends go to ``on_message``. ``timeout`` bounds the whole run (seconds).
+    Raises RewardFunctionError or SandboxError (see :class:`SandboxProcess`).
+    """
+    sandbox = SandboxProcess(
+        target=target,
+        reward_source=reward_source,
+        args=args,
+        limits=limits,
+        prepare=prepare,
+        python_guards=python_guards,
+    )
+    deadline = None if timeout is None else time.monotonic() + timeout
+    sandbox.start()
+    try:
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            msg = sandbox.recv(left)
+            if msg.kind == "result":
+                return msg.value
+            if on_message is not None:
+                on_message(msg.value)
+    finally:
+        sandbox.close()

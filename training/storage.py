@@ -1,0 +1,556 @@
+"""The object store: models, checkpoints, logs and videos, in a local folder or in MinIO/S3.
+
+This is the only module that imports the minio SDK (house style, after healthchecks'
+``hc/lib/s3.py``): :class:`MinioStore` builds its client lazily on first use and turns every
+SDK, HTTP and OS error into one exception of ours, :class:`StoreError` (or
+:class:`ObjectNotFound` for a missing key). :class:`LocalStore` keeps the same contract on disk.
+
+Keys are ``/``-separated relative paths (``"42/model/model_metadata.json"``). Every key is
+checked the same way on both backends (:func:`validate_key`): no absolute paths, no ``.`` or
+``..`` segments, no backslashes, no empty segments, no control characters, so a key can never
+leave the store. Prefixes passed to :meth:`ObjectStore.list` and
+:meth:`ObjectStore.delete_prefix` are folders: ``"42"`` means everything under ``"42/"``.
+
+The per-model layout (DeepRacer-for-Cloud names) is in :class:`ModelKeys`.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import shutil
+import tempfile
+from abc import ABC, abstractmethod
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager, suppress
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+BUCKET_PREFIX = "deepracer"
+DEFAULT_BUCKET = "deepracer-models"
+MAX_KEY_BYTES = 1024  # S3's limit on an object key
+OCTET_STREAM = "application/octet-stream"
+_TMP_DIR = ".racecraft-tmp"  # LocalStore's staging folder for atomic writes (never a key)
+_BUCKET_RE = re.compile(r"^[a-z0-9][a-z0-9.-]{1,61}[a-z0-9]$")
+_MODEL_ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+
+
+class StoreError(Exception):
+    """Any failure of the object store (bad key, unreachable server, refused request...)."""
+
+
+class ObjectNotFound(StoreError):
+    """The key holds no object; ``key`` names it."""
+
+    def __init__(self, key: str) -> None:
+        super().__init__(f"no object at {key!r}")
+        self.key = key
+
+
+def validate_key(key: str) -> str:
+    """Return ``key`` if it is a safe relative object key, else raise :class:`StoreError`."""
+    if not isinstance(key, str) or not key:
+        raise StoreError(f"an object key must be a non-empty string, not {key!r}")
+    if len(key.encode("utf-8", "surrogatepass")) > MAX_KEY_BYTES:
+        raise StoreError(f"object key is longer than {MAX_KEY_BYTES} bytes")
+    if key.startswith("/"):
+        raise StoreError(f"object key {key!r} must be relative, not absolute")
+    if "\\" in key:
+        raise StoreError(f"object key {key!r} must not contain backslashes")
+    if any(ord(c) < 32 or ord(c) == 127 for c in key):
+        raise StoreError(f"object key {key!r} must not contain control characters")
+    for segment in key.split("/"):
+        if segment == "":
+            raise StoreError(f"object key {key!r} has an empty segment")
+        if segment in (".", ".."):
+            raise StoreError(f"object key {key!r} must not contain '.' or '..' segments")
+    if key.split("/")[0] == _TMP_DIR:
+        raise StoreError(f"object key {key!r} uses a reserved folder")
+    return key
+
+
+def _folder(prefix: str, *, allow_root: bool) -> str:
+    """A validated folder prefix ending with ``/`` (``""`` is the whole store if allowed)."""
+    if prefix in ("", "/") and allow_root:
+        return ""
+    return validate_key(prefix.rstrip("/")) + "/"
+
+
+class ObjectStore(ABC):
+    """What the rest of Racecraft may do with stored objects. Keys: see :func:`validate_key`.
+
+    Every method raises :class:`StoreError` on failure; reads of a missing key raise
+    :class:`ObjectNotFound`. Deleting a missing key is not an error.
+    """
+
+    @abstractmethod
+    def put_bytes(self, key: str, data: bytes, content_type: str = OCTET_STREAM) -> None:
+        """Store ``data`` at ``key``, replacing any previous object atomically."""
+
+    @abstractmethod
+    def get_bytes(self, key: str) -> bytes:
+        """The whole object at ``key``."""
+
+    @abstractmethod
+    def put_file(self, key: str, path: str | os.PathLike, content_type: str = OCTET_STREAM) -> None:
+        """Upload a local file (large objects: videos, archives) without reading it whole."""
+
+    @abstractmethod
+    def get_file(self, key: str, path: str | os.PathLike) -> None:
+        """Download the object at ``key`` to the local file ``path`` (replaced atomically)."""
+
+    @abstractmethod
+    def exists(self, key: str) -> bool:
+        """Whether an object is stored at ``key``."""
+
+    @abstractmethod
+    def size(self, key: str) -> int:
+        """The object's size in bytes."""
+
+    @abstractmethod
+    def list(self, prefix: str = "") -> list[str]:
+        """Every key under the folder ``prefix`` (recursively), sorted; ``""`` lists all."""
+
+    @abstractmethod
+    def delete(self, key: str) -> None:
+        """Remove the object at ``key`` if there is one."""
+
+    @abstractmethod
+    def delete_prefix(self, prefix: str) -> int:
+        """Remove every object under the folder ``prefix`` (never the whole store).
+
+        Returns how many objects were removed.
+        """
+
+    def copy_prefix(self, source: str, target: str) -> int:
+        """Copy every object under folder ``source`` to the same relative key under ``target``."""
+        src, dst = _folder(source, allow_root=False), _folder(target, allow_root=False)
+        keys = self.list(src)
+        for key in keys:
+            self.put_bytes(dst + key[len(src) :], self.get_bytes(key))
+        return len(keys)
+
+
+class LocalStore(ObjectStore):
+    """Objects as files under ``root`` (created when missing). Writes go to a temporary file
+    in ``root/.racecraft-tmp`` and are renamed into place, so readers never see half a file."""
+
+    def __init__(self, root: str | os.PathLike) -> None:
+        self.root = Path(root).resolve()
+        try:
+            (self.root / _TMP_DIR).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StoreError(f"cannot create the store folder {self.root}: {exc}") from exc
+
+    def __repr__(self) -> str:
+        return f"LocalStore({str(self.root)!r})"
+
+    def _path(self, key: str) -> Path:
+        path = self.root / validate_key(key)
+        # Defence in depth: a symlink planted inside the store must not lead out of it.
+        if not path.resolve().is_relative_to(self.root):
+            raise StoreError(f"object key {key!r} leads outside the store")
+        return path
+
+    @contextmanager
+    def _errors(self, action: str, key: str) -> Iterator[None]:
+        try:
+            yield
+        except StoreError:
+            raise
+        except (FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
+            if action in ("read", "stat"):
+                raise ObjectNotFound(key) from exc
+            raise StoreError(f"cannot {action} {key!r}: {exc.strerror or exc}") from exc
+        except OSError as exc:
+            raise StoreError(f"cannot {action} {key!r}: {exc.strerror or exc}") from exc
+
+    def _write_atomic(self, path: Path, write: Any) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=self.root / _TMP_DIR, prefix="put-")
+        try:
+            with os.fdopen(fd, "wb") as handle:
+                write(handle)
+                handle.flush()
+                os.fsync(handle.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            with suppress(OSError):
+                os.unlink(tmp)
+            raise
+
+    def put_bytes(self, key: str, data: bytes, content_type: str = OCTET_STREAM) -> None:
+        path = self._path(key)
+        with self._errors("write", key):
+            self._write_atomic(path, lambda handle: handle.write(bytes(data)))
+
+    def get_bytes(self, key: str) -> bytes:
+        path = self._path(key)
+        with self._errors("read", key):
+            return path.read_bytes()
+
+    def put_file(self, key: str, path: str | os.PathLike, content_type: str = OCTET_STREAM) -> None:
+        target = self._path(key)
+        with self._errors("write", key), open(path, "rb") as source:
+            self._write_atomic(target, lambda handle: shutil.copyfileobj(source, handle))
+
+    def get_file(self, key: str, path: str | os.PathLike) -> None:
+        source = self._path(key)
+        with self._errors("read", key):
+            if not source.is_file():
+                raise ObjectNotFound(key)
+            target = Path(path)
+            fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.")
+            os.close(fd)
+            try:
+                shutil.copyfile(source, tmp)
+                os.replace(tmp, target)
+            except BaseException:
+                with suppress(OSError):
+                    os.unlink(tmp)
+                raise
+
+    def exists(self, key: str) -> bool:
+        return self._path(key).is_file()
+
+    def size(self, key: str) -> int:
+        path = self._path(key)
+        with self._errors("stat", key):
+            if not path.is_file():
+                raise ObjectNotFound(key)
+            return path.stat().st_size
+
+    def list(self, prefix: str = "") -> list[str]:
+        folder = _folder(prefix, allow_root=True)
+        base = self._path(folder.rstrip("/")) if folder else self.root
+        if not base.is_dir():
+            return []
+        keys = []
+        for dirpath, dirnames, filenames in os.walk(base):
+            if Path(dirpath) == self.root and _TMP_DIR in dirnames:
+                dirnames.remove(_TMP_DIR)
+            rel = Path(dirpath).relative_to(self.root).as_posix()
+            keys += [name if rel == "." else f"{rel}/{name}" for name in filenames]
+        return sorted(keys)
+
+    def delete(self, key: str) -> None:
+        path = self._path(key)
+        with self._errors("delete", key):
+            try:
+                path.unlink()
+            except FileNotFoundError:
+                return
+            self._prune(path.parent)
+
+    def delete_prefix(self, prefix: str) -> int:
+        folder = _folder(prefix, allow_root=False)
+        count = len(self.list(folder))
+        base = self._path(folder.rstrip("/"))
+        with self._errors("delete", folder):
+            if base.is_dir():
+                shutil.rmtree(base)
+                self._prune(base.parent)
+        return count
+
+    def _prune(self, folder: Path) -> None:
+        """Remove now-empty folders between ``folder`` and the root (tidy, like S3)."""
+        while folder != self.root and folder.is_relative_to(self.root):
+            try:
+                folder.rmdir()
+            except OSError:
+                return
+            folder = folder.parent
+
+
+class MinioStore(ObjectStore):
+    """Objects in one bucket of a MinIO (or any S3) server, through the minio SDK.
+
+    ``endpoint`` is ``host:port`` (a leading ``http://``/``https://`` is accepted and stripped);
+    ``bucket`` must start with ``"deepracer"`` (DeepRacer tools only read such buckets) and be
+    a valid S3 name, else :class:`StoreError` at construction. The client is built, and the
+    bucket created when missing, on first use. ``timeout`` is seconds per HTTP request.
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        access_key: str,
+        secret_key: str,
+        secure: bool = False,
+        bucket: str = DEFAULT_BUCKET,
+        region: str | None = None,
+        *,
+        timeout: float = 30.0,
+        retries: int = 3,
+    ) -> None:
+        check_bucket_name(bucket)
+        for scheme in ("http://", "https://"):
+            if endpoint.startswith(scheme):
+                endpoint = endpoint[len(scheme) :]
+        if not endpoint or "/" in endpoint.rstrip("/"):
+            raise StoreError(f"MinIO endpoint must be host:port, not {endpoint!r}")
+        self.endpoint = endpoint.rstrip("/")
+        self.bucket = bucket
+        self.secure = secure
+        self.region = region or None
+        self._credentials = (access_key, secret_key)
+        self._timeout = timeout
+        self._retries = retries
+        self._client: Any = None
+
+    def __repr__(self) -> str:
+        scheme = "https" if self.secure else "http"
+        return f"MinioStore({scheme}://{self.endpoint}/{self.bucket})"
+
+    @property
+    def client(self) -> Any:
+        """The minio client, built (and the bucket ensured) on first use."""
+        if self._client is None:
+            import urllib3
+            from minio import Minio
+
+            http = urllib3.PoolManager(
+                timeout=urllib3.Timeout(connect=min(self._timeout, 10.0), read=self._timeout),
+                retries=urllib3.Retry(
+                    total=self._retries,
+                    backoff_factor=0.2,
+                    status_forcelist=(500, 502, 503, 504),
+                ),
+            )
+            client = Minio(
+                self.endpoint,
+                access_key=self._credentials[0],
+                secret_key=self._credentials[1],
+                secure=self.secure,
+                region=self.region,
+                http_client=http,
+            )
+            with self._errors("create bucket", self.bucket):
+                if not client.bucket_exists(self.bucket):
+                    client.make_bucket(self.bucket, location=self.region)
+            self._client = client
+        return self._client
+
+    @contextmanager
+    def _errors(self, action: str, key: str) -> Iterator[None]:
+        from minio.error import MinioException, S3Error
+        from urllib3.exceptions import HTTPError
+
+        try:
+            yield
+        except StoreError:
+            raise
+        except S3Error as exc:
+            if exc.code in ("NoSuchKey", "NoSuchObject", "ResourceNotFound"):
+                raise ObjectNotFound(key) from exc
+            raise StoreError(f"cannot {action} {key!r}: {exc.code}: {exc.message}") from exc
+        except (MinioException, HTTPError, OSError, ValueError) as exc:
+            raise StoreError(f"cannot {action} {key!r} at {self!r}: {exc}") from exc
+
+    def put_bytes(self, key: str, data: bytes, content_type: str = OCTET_STREAM) -> None:
+        validate_key(key)
+        data = bytes(data)
+        with self._errors("write", key):
+            self.client.put_object(
+                self.bucket, key, io.BytesIO(data), len(data), content_type=content_type
+            )
+
+    def get_bytes(self, key: str) -> bytes:
+        validate_key(key)
+        with self._errors("read", key):
+            response = self.client.get_object(self.bucket, key)
+            try:
+                return response.read()
+            finally:
+                response.close()
+                response.release_conn()
+
+    def put_file(self, key: str, path: str | os.PathLike, content_type: str = OCTET_STREAM) -> None:
+        validate_key(key)
+        with self._errors("write", key):
+            self.client.fput_object(self.bucket, key, os.fspath(path), content_type=content_type)
+
+    def get_file(self, key: str, path: str | os.PathLike) -> None:
+        validate_key(key)
+        with self._errors("read", key):
+            self.client.fget_object(self.bucket, key, os.fspath(path))
+
+    def exists(self, key: str) -> bool:
+        try:
+            self.size(key)
+        except ObjectNotFound:
+            return False
+        return True
+
+    def size(self, key: str) -> int:
+        validate_key(key)
+        with self._errors("stat", key):
+            return int(self.client.stat_object(self.bucket, key).size)
+
+    def list(self, prefix: str = "") -> list[str]:
+        folder = _folder(prefix, allow_root=True)
+        with self._errors("list", folder):
+            objects = self.client.list_objects(self.bucket, prefix=folder or None, recursive=True)
+            return sorted(obj.object_name for obj in objects if not obj.is_dir)
+
+    def delete(self, key: str) -> None:
+        validate_key(key)
+        with self._errors("delete", key):
+            self.client.remove_object(self.bucket, key)
+
+    def delete_prefix(self, prefix: str) -> int:
+        from minio.deleteobjects import DeleteObject
+
+        folder = _folder(prefix, allow_root=False)
+        keys = self.list(folder)
+        with self._errors("delete", folder):
+            for start in range(0, len(keys), 1000):  # S3 deletes at most 1000 per request
+                batch = [DeleteObject(k) for k in keys[start : start + 1000]]
+                failures = list(self.client.remove_objects(self.bucket, batch))
+                if failures:
+                    raise StoreError(f"cannot delete {failures[0].name!r}: {failures[0].message}")
+        return len(keys)
+
+
+def check_bucket_name(bucket: str) -> str:
+    """Return ``bucket`` if it starts with ``"deepracer"`` and is a valid S3 bucket name."""
+    if not isinstance(bucket, str) or not bucket.startswith(BUCKET_PREFIX):
+        raise StoreError(f"bucket {bucket!r} must start with {BUCKET_PREFIX!r}")
+    if not _BUCKET_RE.match(bucket) or ".." in bucket:
+        raise StoreError(
+            f"bucket {bucket!r} is not a valid S3 name (3-63 lowercase letters, digits, . or -)"
+        )
+    return bucket
+
+
+def _flag(value: Any) -> bool:
+    if isinstance(value, bool):
+        return value
+    text = str(value).strip().lower()
+    if text in ("1", "true", "yes", "on"):
+        return True
+    if text in ("", "0", "false", "no", "off", "none"):
+        return False
+    raise StoreError(f"MINIO_SECURE must be true or false, not {value!r}")
+
+
+def store_from_settings(settings: Mapping[str, Any]) -> ObjectStore:
+    """The store the settings ask for: MinIO when ``MINIO_ENDPOINT`` is set (with
+    ``MINIO_ACCESS_KEY``, ``MINIO_SECRET_KEY``, ``MINIO_SECURE``, ``MINIO_BUCKET`` and an
+    optional ``MINIO_REGION``), else a :class:`LocalStore` at ``STORE_DIR``.
+
+    ``settings`` is a plain mapping (e.g. built from Django settings by the caller). Raises
+    :class:`StoreError` for an incomplete or invalid configuration.
+    """
+    endpoint = settings.get("MINIO_ENDPOINT") or ""
+    if endpoint:
+        access, secret = settings.get("MINIO_ACCESS_KEY"), settings.get("MINIO_SECRET_KEY")
+        if not access or not secret:
+            raise StoreError("MINIO_ENDPOINT is set: MINIO_ACCESS_KEY and MINIO_SECRET_KEY too")
+        secure = settings.get("MINIO_SECURE")
+        if secure is None or secure == "":
+            secure = str(endpoint).startswith("https://")
+        return MinioStore(
+            str(endpoint),
+            str(access),
+            str(secret),
+            secure=_flag(secure),
+            bucket=str(settings.get("MINIO_BUCKET") or DEFAULT_BUCKET),
+            region=settings.get("MINIO_REGION") or None,
+        )
+    store_dir = settings.get("STORE_DIR")
+    if not store_dir:
+        raise StoreError("set MINIO_ENDPOINT or STORE_DIR")
+    return LocalStore(store_dir)
+
+
+def model_prefix(model_id: str | int) -> str:
+    """The folder of one model: ``"<model-id>/"``. Ids are 1-64 of ``A-Z a-z 0-9 _ -``."""
+    text = str(model_id)
+    if isinstance(model_id, bool) or not _MODEL_ID_RE.match(text):
+        raise StoreError(f"model id {model_id!r} must be 1-64 letters, digits, '_' or '-'")
+    return f"{text}/"
+
+
+def _name(value: str | int, what: str) -> str:
+    text = str(value)
+    if isinstance(value, bool) or not _MODEL_ID_RE.match(text):
+        raise StoreError(f"{what} {value!r} must be 1-64 letters, digits, '_' or '-'")
+    return text
+
+
+@dataclass(frozen=True)
+class ModelKeys:
+    """Object keys of one model, in DeepRacer-for-Cloud's layout (architecture.md)::
+
+    <id>/model/model_metadata.json   <id>/model/<checkpoint>.zip   <id>/model/best, last
+    <id>/ip/hyperparameters.json     <id>/reward_function.py
+    <id>/training-simtrace/<n>-iteration.csv   <id>/metrics/TrainingMetrics.json
+    <id>/metrics/EvaluationMetrics-<eval>.json
+    <id>/evaluation/<eval>/evaluation-simtrace/<n>-iteration.csv
+    <id>/videos/<eval>.mp4           <id>/export/car.tar.gz
+    """
+
+    model_id: str | int
+
+    @property
+    def prefix(self) -> str:
+        return model_prefix(self.model_id)
+
+    @property
+    def metadata(self) -> str:
+        return f"{self.prefix}model/model_metadata.json"
+
+    @property
+    def hyperparameters(self) -> str:
+        return f"{self.prefix}ip/hyperparameters.json"
+
+    @property
+    def reward_function(self) -> str:
+        return f"{self.prefix}reward_function.py"
+
+    @property
+    def checkpoints_index(self) -> str:
+        """DeepRacer's ``deepracer_checkpoints.json`` (names of the best and last checkpoint)."""
+        return f"{self.prefix}model/deepracer_checkpoints.json"
+
+    def checkpoint(self, name: str) -> str:
+        """A checkpoint file ``model/<name>.zip`` (``name`` without the ``.zip``)."""
+        return f"{self.prefix}model/{_name(name, 'checkpoint name')}.zip"
+
+    @property
+    def best(self) -> str:
+        return self.checkpoint("best")
+
+    @property
+    def last(self) -> str:
+        return self.checkpoint("last")
+
+    def simtrace(self, iteration: int) -> str:
+        return f"{self.prefix}training-simtrace/{_iteration(iteration)}-iteration.csv"
+
+    @property
+    def training_metrics(self) -> str:
+        return f"{self.prefix}metrics/TrainingMetrics.json"
+
+    def evaluation_metrics(self, eval_id: str | int) -> str:
+        return f"{self.prefix}metrics/EvaluationMetrics-{_name(eval_id, 'evaluation id')}.json"
+
+    def evaluation_simtrace(self, eval_id: str | int, iteration: int) -> str:
+        folder = f"{self.prefix}evaluation/{_name(eval_id, 'evaluation id')}"
+        return f"{folder}/evaluation-simtrace/{_iteration(iteration)}-iteration.csv"
+
+    def video(self, eval_id: str | int) -> str:
+        return f"{self.prefix}videos/{_name(eval_id, 'evaluation id')}.mp4"
+
+    @property
+    def car_export(self) -> str:
+        return f"{self.prefix}export/car.tar.gz"
+
+
+def _iteration(n: int) -> int:
+    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+        raise StoreError(f"iteration must be a whole number >= 0, not {n!r}")
+    return n

@@ -1,0 +1,264 @@
+"""Vectorised envs for stable-baselines3: in-process (trusted rewards) or in sandboxed workers.
+
+:class:`SandboxedVecEnv` runs the simulator and the user's reward function together inside
+locked-down child processes (:mod:`training.sandbox`): the reward is called in-process there,
+at full speed, and the trainer only exchanges actions for observations, rewards and compact
+infos over a pipe (JSON + raw arrays; nothing from a worker is ever unpickled). Each worker
+hosts several envs, each with its own instance of the user's module, so module-level state in a
+reward function (a common DeepRacer idiom) stays per car, as on DeepRacer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+from training.rollout import EnvRunner, EnvSpec
+from training.sandbox import SandboxCrashed, SandboxLimits, SandboxProcess
+
+ROLLOUT_LIMITS = SandboxLimits(
+    per_call_seconds=1.0,
+    cpu_seconds=24 * 3600,
+    memory_bytes=3 << 30,
+    open_files=256,
+    start_seconds=60.0,
+)
+"""A rollout worker: a second per reward call, 3 GiB more than its imports, a day of CPU."""
+
+STEP_TIMEOUT_S = 60.0
+
+
+class RolloutError(RuntimeError):
+    """A rollout worker failed; the message is for the user (it names the reward error)."""
+
+
+class _RunnerVecEnv(VecEnv):
+    """Shared VecEnv plumbing over a list of groups, each stepping ``sizes[i]`` envs."""
+
+    def __init__(self, num_envs: int, observation_space, action_space) -> None:
+        super().__init__(num_envs, observation_space, action_space)
+        self._actions: np.ndarray | None = None
+        self.want_frames = False
+        self._seeds: list[int | None] = [None] * num_envs
+
+    def seed(self, seed: int | None = None) -> Sequence[None | int]:
+        if seed is None:
+            seed = int(np.random.randint(0, 2**31 - 1))
+        self._seeds = [seed + i for i in range(self.num_envs)]
+        return self._seeds
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        if attr_name == "render_mode":
+            return [None] * len(self._get_indices(indices))
+        raise AttributeError(f"{type(self).__name__} does not expose {attr_name!r}")
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        raise AttributeError(f"{type(self).__name__} does not allow setting {attr_name!r}")
+
+    def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list[Any]:
+        raise AttributeError(f"{type(self).__name__} does not allow calling {method_name!r}")
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False] * len(self._get_indices(indices))
+
+
+class LocalVecEnv(_RunnerVecEnv):
+    """All envs in this process, with a trusted reward callable (tests, benchmarks)."""
+
+    def __init__(
+        self, spec: EnvSpec, num_envs: int, reward_function: Callable[[dict], float] | None
+    ) -> None:
+        envs = [spec.make(reward_function) for _ in range(num_envs)]
+        self.runner = EnvRunner(envs)
+        super().__init__(num_envs, envs[0].observation_space, envs[0].action_space)
+
+    def reset(self) -> np.ndarray:
+        obs = self.runner.reset(self._seeds, self._options)
+        self._seeds = [None] * self.num_envs
+        self._reset_options()
+        return obs
+
+    def step_wait(self):
+        self.runner.want_frames = self.want_frames
+        obs, rewards, dones, infos = self.runner.step(self._actions)
+        return obs, rewards, dones, infos
+
+    def close(self) -> None:
+        self.runner.close()
+
+
+# ----------------------------------------------------------------------- sandboxed workers
+def worker_prepare(args: dict) -> EnvRunner:
+    """Runs in the worker BEFORE lock-down: imports and builds the envs (files are read here)."""
+    import cv2
+
+    cv2.setNumThreads(1)  # no thread pool: the locked-down worker may not start threads
+    spec = EnvSpec.from_json(args["spec"])
+    envs = [spec.make(None) for _ in range(args["num_envs"])]
+    return EnvRunner(envs, phase=args.get("phase", "training"))
+
+
+def worker_main(ctx) -> dict:
+    """Runs in the worker AFTER lock-down: serves reset/step commands until told to close."""
+    runner: EnvRunner = ctx.prepared
+    for env in runner.envs:
+        # One instance of the user's module per car, as on DeepRacer (one car per process).
+        env.reward_function = ctx.new_reward() if hasattr(ctx, "new_reward") else ctx.reward
+    while True:
+        msg = ctx.recv()
+        if msg is None or msg.get("cmd") == "close":
+            break
+        if msg["cmd"] == "reset":
+            ctx.send({"obs": runner.reset(msg["seeds"], msg.get("options"))})
+        elif msg["cmd"] == "step":
+            runner.want_frames = bool(msg.get("frames"))
+            obs, rewards, dones, infos = runner.step(msg["actions"])
+            ctx.send({"obs": obs, "rewards": rewards, "dones": dones, "infos": infos})
+    runner.close()
+    return {"closed": True}
+
+
+class SandboxedVecEnv(_RunnerVecEnv):
+    """``num_envs`` envs spread over ``num_workers`` sandboxed processes running the user's
+    reward source. Raises :class:`RolloutError` with a plain message when a worker fails."""
+
+    def __init__(
+        self,
+        spec: EnvSpec,
+        num_envs: int,
+        reward_source: str,
+        *,
+        num_workers: int = 2,
+        limits: SandboxLimits = ROLLOUT_LIMITS,
+        phase: str = "training",
+    ) -> None:
+        if num_envs < 1:
+            raise ValueError("num_envs must be at least 1")
+        num_workers = max(1, min(num_workers, num_envs))
+        sizes = [
+            num_envs // num_workers + (1 if i < num_envs % num_workers else 0)
+            for i in range(num_workers)
+        ]
+        # Spaces come from a local env (the worker's reply is never trusted for them).
+        probe = spec.make(None)
+        obs_space, act_space = probe.observation_space, probe.action_space
+        probe.close()
+        self.sizes = sizes
+        self.workers: list[SandboxProcess] = []
+        try:
+            for size in sizes:
+                worker = SandboxProcess(
+                    target="training.vecenv:worker_main",
+                    prepare="training.vecenv:worker_prepare",
+                    reward_source=reward_source,
+                    args={"spec": spec.to_json(), "num_envs": size, "phase": phase},
+                    limits=limits,
+                )
+                worker.start()
+                self.workers.append(worker)
+        except BaseException:
+            for worker in self.workers:
+                worker.close()
+            raise
+        super().__init__(num_envs, obs_space, act_space)
+        self.layers = self.workers[0].layers if self.workers else {}
+
+    def _exchange(self, messages: list[dict]) -> list[dict]:
+        for worker, msg in zip(self.workers, messages, strict=True):
+            try:
+                worker.send(msg)
+            except SandboxCrashed as exc:
+                raise RolloutError(str(exc)) from exc
+        replies = []
+        for worker in self.workers:
+            try:
+                reply = worker.recv(timeout=STEP_TIMEOUT_S)
+            except SandboxCrashed as exc:
+                raise RolloutError(str(exc)) from exc
+            if reply.kind != "message" or not isinstance(reply.value, dict):
+                raise RolloutError("a simulation worker stopped unexpectedly")
+            replies.append(reply.value)
+        return replies
+
+    def _obs(self, part: Any, size: int) -> np.ndarray:
+        shape = (size, *self.observation_space.shape)
+        if not isinstance(part, np.ndarray) or part.dtype != np.uint8 or part.shape != shape:
+            raise RolloutError("a simulation worker sent observations of the wrong shape")
+        return part
+
+    def reset(self) -> np.ndarray:
+        seeds, options, msgs, start = self._seeds, self._options, [], 0
+        for size in self.sizes:
+            msgs.append({"cmd": "reset", "seeds": seeds[start : start + size],
+                         "options": options[start : start + size]})  # fmt: skip
+            start += size
+        self._seeds = [None] * self.num_envs
+        self._reset_options()
+        replies = self._exchange(msgs)
+        return np.concatenate(
+            [self._obs(r.get("obs"), s) for r, s in zip(replies, self.sizes, strict=True)]
+        )
+
+    def step_wait(self):
+        actions = self._actions
+        msgs, start = [], 0
+        for i, size in enumerate(self.sizes):
+            part = actions[start : start + size]
+            msgs.append({"cmd": "step", "actions": part, "frames": self.want_frames and i == 0})
+            start += size
+        replies = self._exchange(msgs)
+        obs, rewards, dones, infos = [], [], [], []
+        for reply, size in zip(replies, self.sizes, strict=True):
+            obs.append(self._obs(reply.get("obs"), size))
+            r = np.asarray(reply.get("rewards"), dtype=np.float32)
+            d = np.asarray(reply.get("dones"), dtype=bool)
+            info = reply.get("infos")
+            if (
+                r.shape != (size,)
+                or d.shape != (size,)
+                or not isinstance(info, list)
+                or len(info) != size
+            ):
+                raise RolloutError("a simulation worker sent a malformed step")
+            for item in info:
+                term = item.get("terminal_observation") if isinstance(item, dict) else None
+                if term is not None:
+                    self._obs(term[None], 1)
+            rewards.append(r)
+            dones.append(d)
+            infos.extend(info)
+        return np.concatenate(obs), np.concatenate(rewards), np.concatenate(dones), infos
+
+    def close(self) -> None:
+        for worker in self.workers:
+            try:
+                worker.send({"cmd": "close"})
+            except Exception:  # noqa: BLE001 - a dead worker is closed below all the same
+                pass
+            worker.close(grace_seconds=2.0)
+        self.workers = []
+
+
+def make_vec_env(
+    spec: EnvSpec,
+    num_envs: int,
+    *,
+    reward_source: str | None = None,
+    reward_function: Callable[[dict], float] | None = None,
+    num_workers: int = 2,
+) -> VecEnv:
+    """Sandboxed workers for a user's ``reward_source``; in-process for a trusted callable."""
+    if reward_source is not None:
+        return SandboxedVecEnv(spec, num_envs, reward_source, num_workers=num_workers)
+    return LocalVecEnv(spec, num_envs, reward_function)
+
+
+def space_of(env: VecEnv) -> tuple[gym.Space, gym.Space]:
+    return env.observation_space, env.action_space
