@@ -92,6 +92,10 @@ else:
         }
     }
 if DATABASES["default"]["ENGINE"] == "django.db.backends.sqlite3":
+    # Tests on SQLite use a file, so that a real Celery worker process can share it.
+    DATABASES["default"].setdefault("TEST", {}).setdefault(
+        "NAME", str(VAR_DIR / "test-db.sqlite3")
+    )
     # The web server and the Celery worker write at the same time: WAL lets readers go on
     # while one writes, IMMEDIATE takes the write lock up front instead of failing mid-way.
     DATABASES["default"].setdefault("OPTIONS", {}).update(

@@ -141,9 +141,7 @@ def load_weights(
         model.policy.load_state_dict(state, strict=True)
     except (RuntimeError, KeyError, TypeError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise CheckpointError(
-            f"the weights do not fit {fits} ({first})"
-        ) from None
+        raise CheckpointError(f"the weights do not fit {fits} ({first})") from None
     for name in model._get_torch_save_params()[0]:  # e.g. policy.optimizer, actor.optimizer
         if name != "policy" and name in tensors:
             target = model

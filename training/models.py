@@ -1,1 +1,260 @@
-"""Models of the training app (none yet)."""
+"""Racing models and their jobs, with DeepRacer's statuses. State changes live in services;
+the methods here only describe a row."""
+
+from __future__ import annotations
+
+from django.conf import settings
+from django.core.validators import MaxValueValidator, MinValueValidator, RegexValidator
+from django.db import models
+from django.utils import timezone
+
+MODEL_NAME_RE = r"^[A-Za-z0-9-]{1,64}$"
+
+
+class RaceType(models.TextChoices):
+    TIME_TRIAL = "TIME_TRIAL", "Time trial"
+    OBJECT_AVOIDANCE = "OBJECT_AVOIDANCE", "Object avoidance"
+    HEAD_TO_BOT = "HEAD_TO_BOT", "Head-to-head against bots"
+
+
+class Direction(models.TextChoices):
+    NATIVE = "native", "Track's own direction"
+    COUNTER_CLOCKWISE = "ccw", "Counter-clockwise"
+    CLOCKWISE = "cw", "Clockwise"
+
+
+class RacingModel(models.Model):
+    """A user's model: its configuration (immutable once created, as on DeepRacer) and state."""
+
+    class Status(models.TextChoices):
+        QUEUED = "QUEUED", "Queued"
+        TRAINING = "TRAINING", "Training"
+        EVALUATING = "EVALUATING", "Evaluating"
+        SUBMITTING = "SUBMITTING", "Submitting"
+        STOPPING = "STOPPING", "Stopping"
+        READY = "READY", "Ready"
+        ERROR = "ERROR", "Error"
+        DELETING = "DELETING", "Deleting"
+        IMPORTING = "IMPORTING", "Importing"
+
+    owner = models.ForeignKey(
+        settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="racing_models"
+    )
+    name = models.CharField(
+        max_length=64,
+        validators=[RegexValidator(MODEL_NAME_RE, "1-64 letters, digits or hyphens, no spaces")],
+    )
+    description = models.CharField(max_length=255, blank=True)
+    track_id = models.CharField(max_length=64)
+    direction = models.CharField(max_length=8, choices=Direction.choices, default=Direction.NATIVE)
+    race_type = models.CharField(
+        max_length=20, choices=RaceType.choices, default=RaceType.TIME_TRIAL
+    )
+    sensors = models.JSONField(default=list)
+    neural_network = models.CharField(max_length=64)
+    action_space_type = models.CharField(max_length=12)
+    action_space = models.JSONField()
+    algorithm = models.CharField(max_length=16)
+    hyperparameters = models.JSONField(default=dict)
+    reward_function = models.TextField()
+    max_minutes = models.PositiveIntegerField(
+        default=10, validators=[MinValueValidator(1), MaxValueValidator(1440)]
+    )
+    seed = models.PositiveIntegerField(default=0)
+    parent = models.ForeignKey(
+        "self", null=True, blank=True, on_delete=models.SET_NULL, related_name="clones"
+    )
+    imported = models.BooleanField(default=False)
+    status = models.CharField(max_length=12, choices=Status.choices, default=Status.READY)
+    has_checkpoint = models.BooleanField(default=False)
+    error = models.TextField(blank=True)
+    created_at = models.DateTimeField(default=timezone.now)
+    updated_at = models.DateTimeField(auto_now=True)
+
+    class Meta:
+        ordering = ["-created_at"]
+        constraints = [
+            models.UniqueConstraint(fields=["owner", "name"], name="unique_model_name_per_owner")
+        ]
+
+    def __str__(self) -> str:
+        return self.name
+
+    @property
+    def is_busy(self) -> bool:
+        return self.status in (
+            self.Status.QUEUED,
+            self.Status.TRAINING,
+            self.Status.EVALUATING,
+            self.Status.STOPPING,
+            self.Status.DELETING,
+            self.Status.IMPORTING,
+            self.Status.SUBMITTING,
+        )
+
+
+class JobStatus(models.TextChoices):
+    QUEUED = "QUEUED", "Queued"
+    INITIALIZING = "INITIALIZING", "Initializing"
+    IN_PROGRESS = "IN_PROGRESS", "In progress"
+    STOPPING = "STOPPING", "Stopping"
+    COMPLETED = "COMPLETED", "Completed"
+    FAILED = "FAILED", "Failed"
+    CANCELED = "CANCELED", "Canceled"
+
+
+ACTIVE_JOB_STATUSES = (
+    JobStatus.QUEUED,
+    JobStatus.INITIALIZING,
+    JobStatus.IN_PROGRESS,
+    JobStatus.STOPPING,
+)
+FINISHED_JOB_STATUSES = (JobStatus.COMPLETED, JobStatus.FAILED, JobStatus.CANCELED)
+
+
+class Job(models.Model):
+    """What training and evaluation jobs share: DeepRacer's lifecycle, timestamps, an error
+    in plain words, a cooperative stop flag and a heartbeat for noticing dead workers."""
+
+    status = models.CharField(max_length=16, choices=JobStatus.choices, default=JobStatus.QUEUED)
+    created_at = models.DateTimeField(default=timezone.now)
+    started_at = models.DateTimeField(null=True, blank=True)
+    finished_at = models.DateTimeField(null=True, blank=True)
+    heartbeat_at = models.DateTimeField(null=True, blank=True)
+    stop_requested = models.BooleanField(default=False)
+    error = models.TextField(blank=True)
+    task_id = models.CharField(max_length=64, blank=True)
+    worker = models.CharField(max_length=255, blank=True)
+
+    class Meta:
+        abstract = True
+        ordering = ["-created_at"]
+
+    @property
+    def is_active(self) -> bool:
+        return self.status in ACTIVE_JOB_STATUSES
+
+    @property
+    def elapsed_seconds(self) -> float:
+        if self.started_at is None:
+            return 0.0
+        end = self.finished_at or timezone.now()
+        return max(0.0, (end - self.started_at).total_seconds())
+
+
+class TrainingJob(Job):
+    model = models.ForeignKey(RacingModel, on_delete=models.CASCADE, related_name="training_jobs")
+    max_minutes = models.PositiveIntegerField()
+    iterations = models.PositiveIntegerField(default=0)
+    total_steps = models.PositiveBigIntegerField(default=0)
+    episodes = models.PositiveIntegerField(default=0)
+    best_iteration = models.PositiveIntegerField(null=True, blank=True)
+    best_eval_progress = models.FloatField(default=0.0)
+    stopped_by = models.CharField(max_length=16, blank=True)
+
+    @property
+    def remaining_seconds(self) -> float:
+        if self.started_at is None or not self.is_active:
+            return 0.0
+        return max(0.0, self.max_minutes * 60 - self.elapsed_seconds)
+
+    def __str__(self) -> str:
+        return f"training #{self.pk} of {self.model}"
+
+
+class IterationMetric(models.Model):
+    """One point of DeepRacer's reward graph, plus where the time went."""
+
+    job = models.ForeignKey(TrainingJob, on_delete=models.CASCADE, related_name="iterations_set")
+    iteration = models.PositiveIntegerField()
+    episodes = models.PositiveIntegerField()
+    steps = models.PositiveIntegerField()
+    total_steps = models.PositiveBigIntegerField()
+    train_reward = models.FloatField()
+    train_progress = models.FloatField()
+    eval_progress = models.FloatField()
+    eval_reward = models.FloatField(default=0.0)
+    eval_laps_completed = models.PositiveIntegerField(default=0)
+    is_best = models.BooleanField(default=False)
+    elapsed_s = models.FloatField()
+    rollout_s = models.FloatField(default=0.0)
+    update_s = models.FloatField(default=0.0)
+    eval_s = models.FloatField(default=0.0)
+    created_at = models.DateTimeField(default=timezone.now)
+
+    class Meta:
+        ordering = ["job", "iteration"]
+        constraints = [
+            models.UniqueConstraint(fields=["job", "iteration"], name="unique_iteration_per_job")
+        ]
+
+    def as_point(self) -> dict:
+        return {
+            "iteration": self.iteration,
+            "train_reward": round(self.train_reward, 3),
+            "train_progress": round(self.train_progress, 2),
+            "eval_progress": round(self.eval_progress, 2),
+            "is_best": self.is_best,
+            "elapsed_s": round(self.elapsed_s, 1),
+            "total_steps": self.total_steps,
+        }
+
+
+class EpisodeMetric(models.Model):
+    """One episode: the fields of DeepRacer's TrainingMetrics.json."""
+
+    job = models.ForeignKey(TrainingJob, on_delete=models.CASCADE, related_name="episode_metrics")
+    iteration = models.PositiveIntegerField()
+    episode = models.PositiveIntegerField()
+    phase = models.CharField(max_length=12, default="training")
+    reward_score = models.IntegerField()
+    completion_percentage = models.PositiveSmallIntegerField()
+    episode_status = models.CharField(max_length=20)
+    elapsed_time_in_milliseconds = models.PositiveBigIntegerField()
+    start_time = models.PositiveBigIntegerField()
+    metric_time = models.PositiveBigIntegerField()
+
+    class Meta:
+        ordering = ["job", "episode"]
+        indexes = [models.Index(fields=["job", "iteration"])]
+
+    def as_deepracer(self) -> dict:
+        return {
+            "reward_score": self.reward_score,
+            "metric_time": self.metric_time,
+            "start_time": self.start_time,
+            "elapsed_time_in_milliseconds": self.elapsed_time_in_milliseconds,
+            "episode": self.episode,
+            "trial": self.episode + 1,
+            "phase": self.phase,
+            "completion_percentage": self.completion_percentage,
+            "episode_status": self.episode_status,
+        }
+
+
+class EvaluationJob(Job):
+    """An evaluation: 3-5 laps on a track under DeepRacer's rules, with results and a video."""
+
+    model = models.ForeignKey(RacingModel, on_delete=models.CASCADE, related_name="evaluations")
+    track_id = models.CharField(max_length=64)
+    direction = models.CharField(max_length=8, choices=Direction.choices, default=Direction.NATIVE)
+    race_type = models.CharField(
+        max_length=20, choices=RaceType.choices, default=RaceType.TIME_TRIAL
+    )
+    laps = models.PositiveSmallIntegerField(
+        default=3, validators=[MinValueValidator(3), MaxValueValidator(5)]
+    )
+    off_track_penalty_s = models.FloatField(default=2.0)
+    crash_penalty_s = models.FloatField(default=5.0)
+    checkpoint = models.CharField(max_length=8, default="best")
+    purpose = models.CharField(max_length=16, default="user")  # user | submission
+    results = models.JSONField(default=dict, blank=True)
+    laps_done = models.PositiveSmallIntegerField(default=0)
+    has_video = models.BooleanField(default=False)
+
+    def __str__(self) -> str:
+        return f"evaluation #{self.pk} of {self.model}"
+
+    @property
+    def lap_rows(self) -> list[dict]:
+        return list(self.results.get("laps", [])) if isinstance(self.results, dict) else []

@@ -24,7 +24,6 @@ import tempfile
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager, suppress
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -464,93 +463,3 @@ def store_from_settings(settings: Mapping[str, Any]) -> ObjectStore:
     if not store_dir:
         raise StoreError("set MINIO_ENDPOINT or STORE_DIR")
     return LocalStore(store_dir)
-
-
-def model_prefix(model_id: str | int) -> str:
-    """The folder of one model: ``"<model-id>/"``. Ids are 1-64 of ``A-Z a-z 0-9 _ -``."""
-    text = str(model_id)
-    if isinstance(model_id, bool) or not _MODEL_ID_RE.match(text):
-        raise StoreError(f"model id {model_id!r} must be 1-64 letters, digits, '_' or '-'")
-    return f"{text}/"
-
-
-def _name(value: str | int, what: str) -> str:
-    text = str(value)
-    if isinstance(value, bool) or not _MODEL_ID_RE.match(text):
-        raise StoreError(f"{what} {value!r} must be 1-64 letters, digits, '_' or '-'")
-    return text
-
-
-@dataclass(frozen=True)
-class ModelKeys:
-    """Object keys of one model, in DeepRacer-for-Cloud's layout (architecture.md)::
-
-    <id>/model/model_metadata.json   <id>/model/<checkpoint>.zip   <id>/model/best, last
-    <id>/ip/hyperparameters.json     <id>/reward_function.py
-    <id>/training-simtrace/<n>-iteration.csv   <id>/metrics/TrainingMetrics.json
-    <id>/metrics/EvaluationMetrics-<eval>.json
-    <id>/evaluation/<eval>/evaluation-simtrace/<n>-iteration.csv
-    <id>/videos/<eval>.mp4           <id>/export/car.tar.gz
-    """
-
-    model_id: str | int
-
-    @property
-    def prefix(self) -> str:
-        return model_prefix(self.model_id)
-
-    @property
-    def metadata(self) -> str:
-        return f"{self.prefix}model/model_metadata.json"
-
-    @property
-    def hyperparameters(self) -> str:
-        return f"{self.prefix}ip/hyperparameters.json"
-
-    @property
-    def reward_function(self) -> str:
-        return f"{self.prefix}reward_function.py"
-
-    @property
-    def checkpoints_index(self) -> str:
-        """DeepRacer's ``deepracer_checkpoints.json`` (names of the best and last checkpoint)."""
-        return f"{self.prefix}model/deepracer_checkpoints.json"
-
-    def checkpoint(self, name: str) -> str:
-        """A checkpoint file ``model/<name>.zip`` (``name`` without the ``.zip``)."""
-        return f"{self.prefix}model/{_name(name, 'checkpoint name')}.zip"
-
-    @property
-    def best(self) -> str:
-        return self.checkpoint("best")
-
-    @property
-    def last(self) -> str:
-        return self.checkpoint("last")
-
-    def simtrace(self, iteration: int) -> str:
-        return f"{self.prefix}training-simtrace/{_iteration(iteration)}-iteration.csv"
-
-    @property
-    def training_metrics(self) -> str:
-        return f"{self.prefix}metrics/TrainingMetrics.json"
-
-    def evaluation_metrics(self, eval_id: str | int) -> str:
-        return f"{self.prefix}metrics/EvaluationMetrics-{_name(eval_id, 'evaluation id')}.json"
-
-    def evaluation_simtrace(self, eval_id: str | int, iteration: int) -> str:
-        folder = f"{self.prefix}evaluation/{_name(eval_id, 'evaluation id')}"
-        return f"{folder}/evaluation-simtrace/{_iteration(iteration)}-iteration.csv"
-
-    def video(self, eval_id: str | int) -> str:
-        return f"{self.prefix}videos/{_name(eval_id, 'evaluation id')}.mp4"
-
-    @property
-    def car_export(self) -> str:
-        return f"{self.prefix}export/car.tar.gz"
-
-
-def _iteration(n: int) -> int:
-    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
-        raise StoreError(f"iteration must be a whole number >= 0, not {n!r}")
-    return n

@@ -15,14 +15,13 @@ from pathlib import Path
 import pytest
 from moto.server import ThreadedMotoServer
 
+from training.layout import ModelKeys, model_prefix
 from training.storage import (
     LocalStore,
     MinioStore,
-    ModelKeys,
     ObjectNotFound,
     ObjectStore,
     StoreError,
-    model_prefix,
     store_from_settings,
     validate_key,
 )

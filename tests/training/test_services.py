@@ -1,0 +1,227 @@
+"""Model and job rules: validation with clear messages, quotas, ownership, queueing failures,
+stopping, and noticing jobs whose worker died. (Alice owns things; Bob must never touch them.)"""
+
+from __future__ import annotations
+
+import pytest
+from django.contrib.auth import get_user_model
+from django.utils import timezone
+
+from training import services
+from training.models import EvaluationJob, JobStatus, RacingModel, TrainingJob
+from training.services import RewardRejected, ServiceError
+
+ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-30, 0, 30)]
+REWARD = "def reward_function(params):\n    return 1.0\n"
+
+pytestmark = pytest.mark.django_db
+
+
+@pytest.fixture(autouse=True)
+def store_dir(tmp_path, settings):
+    settings.STORE_DIR = tmp_path / "store"
+
+
+@pytest.fixture
+def alice():
+    return get_user_model().objects.create_user("alice", password="pw-alice-123")
+
+
+@pytest.fixture
+def bob():
+    return get_user_model().objects.create_user("bob", password="pw-bob-123")
+
+
+def create(owner, **overrides) -> RacingModel:
+    kwargs = dict(owner=owner, name="m1", track_id="racecraft_oval", action_space=ACTIONS,
+                  reward_function=REWARD, validate_reward=False)  # fmt: skip
+    kwargs.update(overrides)
+    return services.model_create(**kwargs)
+
+
+def test_create_stores_deepracer_files(alice):
+    from training.store import get_store, keys_for
+
+    model = create(alice, validate_reward=True)
+    assert model.status == RacingModel.Status.READY and not model.has_checkpoint
+    assert model.action_space_type == "discrete" and model.hyperparameters["batch_size"] == 64
+    store, keys = get_store(), keys_for(model.pk)
+    assert store.get_bytes(keys.reward_function).decode() == REWARD
+    assert b'"action_space"' in store.get_bytes(keys.metadata)
+    assert store.exists(keys.hyperparameters)
+
+
+@pytest.mark.parametrize(
+    "overrides, field, message",
+    [
+        ({"name": "has space"}, "name", "letters, digits or hyphens"),
+        ({"name": "x" * 65}, "name", "1-64"),
+        ({"track_id": "atlantis"}, "track_id", "unknown track"),
+        ({"direction": "sideways"}, "direction", "native, ccw or cw"),
+        ({"race_type": "OBJECT_AVOIDANCE"}, "race_type", "Time trial"),
+        ({"algorithm": "sac"}, "algorithm", "continuous"),
+        ({"action_space": [{"steering_angle": 0, "speed": 1}]}, "action_space", "2-30"),
+        ({"sensors": ["LIDAR"]}, "sensors", ""),
+        ({"neural_network": "HUGE"}, "neural_network", ""),
+        ({"hyperparameters": {"batch_size": 100}}, "hyperparameters", "batch_size"),
+        ({"hyperparameters": {"lr": 1}}, "hyperparameters", "lr"),
+        ({"max_minutes": 0}, "max_minutes", "minutes"),
+        ({"description": "d" * 256}, "description", "255"),
+    ],
+)
+def test_bad_input_is_refused_with_a_clear_message(alice, overrides, field, message):
+    with pytest.raises(ServiceError, match=message) as err:
+        create(alice, **overrides)
+    assert err.value.field == field
+    assert not RacingModel.objects.exists()  # nothing half-made
+
+
+def test_reward_errors_come_back_with_lines(alice):
+    source = "import os\n\ndef reward_function(params):\n    return 1.0\n"
+    with pytest.raises(RewardRejected) as err:
+        create(alice, reward_function=source, validate_reward=True)
+    first = err.value.errors[0]
+    assert first["type"] == "IMPORT_ERROR" and first["line"] == 1
+    broken = "def reward_function(params):\n    x = params['speed'\n    return x\n"
+    with pytest.raises(RewardRejected) as err:
+        create(alice, reward_function=broken, validate_reward=True)
+    assert err.value.errors[0]["type"] == "SYNTAX_ERROR"
+    runtime = "def reward_function(params):\n    return params['nope']\n"
+    with pytest.raises(RewardRejected) as err:
+        create(alice, reward_function=runtime, validate_reward=True)
+    assert err.value.errors[0]["type"] == "TEST_FAILURE" and err.value.errors[0]["line"] == 2
+
+
+def test_names_are_unique_per_owner(alice, bob):
+    create(alice)
+    with pytest.raises(ServiceError, match="already have a model named 'm1'"):
+        create(alice)
+    assert create(bob).name == "m1"  # Bob may use the same name
+
+
+def test_model_quota(alice, settings):
+    settings.RACECRAFT_MAX_MODELS_PER_USER = 2
+    create(alice, name="a")
+    create(alice, name="b")
+    with pytest.raises(ServiceError, match="2 models, the most allowed"):
+        create(alice, name="c")
+
+
+def test_only_the_owner_can_act(alice, bob, django_capture_on_commit_callbacks):
+    model = create(alice)
+    for call in (
+        lambda: services.training_start(model=model, user=bob),
+        lambda: services.evaluation_start(model=model, user=bob),
+        lambda: services.model_delete(model=model, user=bob),
+        lambda: services.model_clone(model=model, owner=bob, name="mine"),
+    ):
+        with pytest.raises(ServiceError, match="not found"):
+            call()
+
+
+def test_start_queues_after_commit_and_a_broker_failure_fails_the_job(
+    alice, monkeypatch, django_capture_on_commit_callbacks
+):
+    from training import tasks
+
+    model = create(alice)
+
+    def broken(*args, **kwargs):
+        raise ConnectionError("broker unreachable")
+
+    monkeypatch.setattr(tasks.train_model, "delay", broken)
+    with django_capture_on_commit_callbacks(execute=True):
+        job = services.training_start(model=model, user=alice)
+    job.refresh_from_db()
+    assert job.status == JobStatus.FAILED and "could not be queued" in job.error
+    model.refresh_from_db()
+    assert model.status == RacingModel.Status.ERROR  # no checkpoint to fall back on
+
+
+def test_job_quota_and_busy_model(alice, settings, monkeypatch, django_capture_on_commit_callbacks):
+    from training import tasks
+
+    monkeypatch.setattr(tasks.train_model, "delay", lambda pk: type("R", (), {"id": "t"})())
+    settings.RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = 1
+    first, second = create(alice, name="a"), create(alice, name="b")
+    with django_capture_on_commit_callbacks(execute=True):
+        job = services.training_start(model=first, user=alice)
+    assert TrainingJob.objects.get(pk=job.pk).task_id == "t"
+    with pytest.raises(ServiceError, match="busy"):
+        services.training_start(model=first, user=alice)
+    with pytest.raises(ServiceError, match="1 jobs queued or running"):
+        services.training_start(model=second, user=alice)
+
+
+def test_stopping_a_queued_job_cancels_it(alice, monkeypatch, django_capture_on_commit_callbacks):
+    from training import tasks
+
+    monkeypatch.setattr(tasks.train_model, "delay", lambda pk: type("R", (), {"id": "t"})())
+    model = create(alice)
+    job = services.training_start(model=model, user=alice)
+    job = services.job_stop(job=job, user=alice)
+    assert job.status == JobStatus.CANCELED and job.stop_requested
+    with pytest.raises(ServiceError, match="already finished"):
+        services.job_stop(job=job, user=alice)
+
+
+def test_stopping_a_running_job_is_cooperative(alice):
+    model = create(alice)
+    job = TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS)
+    job = services.job_stop(job=job, user=alice)
+    assert job.status == JobStatus.STOPPING and job.stop_requested
+    model.refresh_from_db()
+    assert model.status == RacingModel.Status.STOPPING
+
+
+def test_orphaned_jobs_are_noticed(alice):
+    model = create(alice)
+    model.has_checkpoint = True
+    model.save()
+    old = timezone.now() - timezone.timedelta(minutes=30)
+    dead = TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS,
+                                      heartbeat_at=old)  # fmt: skip
+    alive = TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS,
+                                       heartbeat_at=timezone.now())  # fmt: skip
+    assert services.jobs_reap_orphans(stale_after_s=300) == 1
+    dead.refresh_from_db()
+    alive.refresh_from_db()
+    assert dead.status == JobStatus.FAILED and "stopped unexpectedly" in dead.error
+    assert alive.status == JobStatus.IN_PROGRESS
+    model.refresh_from_db()
+    assert model.status == RacingModel.Status.READY  # its checkpoint is still usable
+
+
+def test_a_restarted_worker_fails_its_old_jobs(alice):
+    model = create(alice)
+    job = EvaluationJob.objects.create(model=model, track_id="racecraft_oval",
+                                       status=JobStatus.IN_PROGRESS, worker="w1@host")  # fmt: skip
+    other = EvaluationJob.objects.create(model=model, track_id="racecraft_oval",
+                                         status=JobStatus.IN_PROGRESS, worker="w2@host")  # fmt: skip
+    assert services.jobs_fail_for_worker(worker="w1@host") == 1
+    job.refresh_from_db()
+    other.refresh_from_db()
+    assert job.status == JobStatus.FAILED and other.status == JobStatus.IN_PROGRESS
+
+
+def test_evaluation_needs_a_checkpoint_and_valid_laps(alice):
+    model = create(alice)
+    with pytest.raises(ServiceError, match="train this model"):
+        services.evaluation_start(model=model, user=alice)
+    with pytest.raises(ServiceError, match="3 to 5 laps"):
+        services.evaluation_start(model=model, user=alice, laps=7)
+
+
+def test_clone_keeps_the_number_of_actions(alice):
+    model = create(alice)
+    model.has_checkpoint = True
+    model.save()
+    with pytest.raises(ServiceError, match="keeps the number of actions"):
+        services.model_clone(model=model, owner=alice, name="c", action_space=ACTIONS[:2])
+
+
+def test_delete_refused_while_training(alice):
+    model = create(alice)
+    TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS)
+    with pytest.raises(ServiceError, match="stop the model's training"):
+        services.model_delete(model=model, user=alice)

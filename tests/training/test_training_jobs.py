@@ -1,0 +1,200 @@
+"""A whole model life through a real Celery worker, Redis and the model store: train (stopped
+by the user), evaluate, clone, export for the car (checked with onnxruntime), delete."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+import tarfile
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+from django.contrib.auth import get_user_model
+from django.db import connection
+
+from training import downloads, services
+from training.models import EvaluationJob, IterationMetric, JobStatus, RacingModel, TrainingJob
+from training.store import get_store, keys_for
+
+ROOT = Path(__file__).resolve().parents[2]
+ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
+REWARD = """
+def reward_function(params):
+    if not params["all_wheels_on_track"]:
+        return 1e-3
+    return 1.0 - params["distance_from_center"] / params["track_width"]
+"""
+
+pytestmark = [pytest.mark.django_db(transaction=True), pytest.mark.slow]
+
+
+def database_url() -> str:
+    db = connection.settings_dict
+    if db["ENGINE"].endswith("sqlite3"):
+        return f"sqlite:///{db['NAME']}"
+    user = db.get("USER") or ""
+    auth = f"{user}@" if user else ""
+    return f"postgres://{auth}{db.get('HOST') or '127.0.0.1'}:{db.get('PORT') or 5432}/{db['NAME']}"
+
+
+@pytest.fixture
+def store_dir(tmp_path, settings):
+    settings.STORE_DIR = tmp_path / "store"
+    return settings.STORE_DIR
+
+
+@pytest.fixture
+def celery_worker_process(store_dir, redis_env, settings):
+    """A real ``celery worker`` on the training and evaluation queues, on the test database."""
+    name = f"test-{uuid.uuid4().hex[:8]}@%h"
+    env = {
+        **os.environ,
+        **redis_env,
+        "DATABASE_URL": database_url(),
+        "STORE_DIR": str(store_dir),
+        "RACECRAFT_TRACKS_DIR": str(settings.RACECRAFT_TRACKS_DIR),
+        "DJANGO_SETTINGS_MODULE": "console.settings",
+    }
+    log = open(store_dir.parent / "worker.log", "w")  # noqa: SIM115 - closed below
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "celery", "-A", "console", "worker", "-Q",
+         "training,evaluation,default", "-c", "1", "-n", name, "--without-gossip",
+         "--without-mingle", "-l", "INFO"],
+        cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    try:
+        from console.celery import app
+
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            if app.control.ping(timeout=1.0):
+                break
+            assert proc.poll() is None, (store_dir.parent / "worker.log").read_text()
+        else:
+            pytest.fail("the Celery worker did not answer")
+        yield proc
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
+
+
+def wait_for(predicate, timeout: float, what: str, log_path: Path | None = None):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.5)
+    extra = log_path.read_text()[-4000:] if log_path and log_path.exists() else ""
+    pytest.fail(f"timed out waiting for {what}\n{extra}")
+
+
+def test_train_stop_evaluate_clone_export_delete(celery_worker_process, store_dir):
+    User = get_user_model()
+    alice = User.objects.create_user("alice", password="pw-alice-123")
+    bob = User.objects.create_user("bob", password="pw-bob-123")
+    log_path = store_dir.parent / "worker.log"
+    model = services.model_create(
+        owner=alice,
+        name="oval-runner",
+        track_id="racecraft_oval",
+        action_space=ACTIONS,
+        reward_function=REWARD,
+        hyperparameters={
+            "num_episodes_between_training": 4,
+            "num_epochs": 3,
+            "batch_size": 32,
+        },  # fmt: skip
+        max_minutes=5,
+        seed=1,
+    )
+    job = services.training_start(model=model, user=alice)
+    with pytest.raises(services.ServiceError):
+        services.job_stop(job=job, user=bob)  # Bob cannot touch Alice's job
+
+    wait_for(lambda: TrainingJob.objects.get(pk=job.pk).iterations >= 2, 240,
+             "two training iterations", log_path)  # fmt: skip
+    services.job_stop(job=TrainingJob.objects.get(pk=job.pk), user=alice)
+    job = wait_for(
+        lambda: TrainingJob.objects.filter(pk=job.pk, status=JobStatus.COMPLETED).first(),
+        120, "the stopped job to complete", log_path,
+    )  # fmt: skip
+    assert job.stopped_by == "user"
+    model.refresh_from_db()
+    assert model.status == RacingModel.Status.READY and model.has_checkpoint
+
+    points = list(IterationMetric.objects.filter(job=job).order_by("iteration"))
+    assert len(points) >= 2 and points[0].iteration == 1
+    assert all(0 <= p.eval_progress <= 100 for p in points)
+    assert sum(p.is_best for p in points) >= 1
+    assert job.episodes > 0 and job.episode_metrics.count() == job.episodes
+
+    store, keys = get_store(), keys_for(model.pk)
+    for key in (keys.best, keys.last, keys.metadata, keys.hyperparameters, keys.reward_function,
+                keys.training_metrics, keys.simtrace(0), keys.car_export):  # fmt: skip
+        assert store.exists(key), key
+    csv = store.get_bytes(keys.simtrace(0)).decode().splitlines()
+    assert csv[0].split(",")[:3] == ["episode", "steps", "X"] and len(csv[0].split(",")) == 19
+    assert len(csv) > 10
+    metrics = json.loads(store.get_bytes(keys.training_metrics))
+    assert metrics["version"] == 2 and len(metrics["metrics"]) == job.episodes
+
+    evaluation = services.evaluation_start(model=model, user=alice, laps=3)
+    evaluation = wait_for(
+        lambda: EvaluationJob.objects.filter(pk=evaluation.pk, status=JobStatus.COMPLETED).first(),
+        240, "the evaluation", log_path,
+    )  # fmt: skip
+    laps = evaluation.lap_rows
+    assert 1 <= len(laps) <= 3
+    assert {"trial", "time_s", "progress", "status", "off_tracks", "resets"} <= set(laps[0])
+    assert evaluation.has_video and downloads.evaluation_video(evaluation)[4:8] == b"ftyp"
+    assert store.exists(keys.evaluation_metrics(evaluation.pk))
+
+    clone = services.model_clone(model=model, owner=alice, name="oval-runner-2")
+    assert clone.parent == model and clone.has_checkpoint
+    assert store.get_bytes(keys_for(clone.pk).checkpoint("initial")) == store.get_bytes(keys.best)
+
+    car = downloads.car_model_archive(model)
+    with tarfile.open(fileobj=io.BytesIO(car)) as tar:
+        names = set(tar.getnames())
+        onnx_bytes = tar.extractfile("model.onnx").read()
+    assert {"model.onnx", "model_metadata.json"} <= names
+    _onnx_agrees_with_torch(model, onnx_bytes)
+
+    logs = downloads.logs_archive(model)
+    with tarfile.open(fileobj=io.BytesIO(logs)) as tar:
+        assert any(n.startswith("training-simtrace/") for n in tar.getnames())
+
+    services.model_delete(model=clone, user=alice)
+    assert not store.list(keys_for(clone.pk).prefix)
+    assert not RacingModel.objects.filter(pk=clone.pk).exists()
+
+
+def _onnx_agrees_with_torch(model: RacingModel, onnx_bytes: bytes) -> None:
+    import onnxruntime as ort
+
+    from racing.env import RacingEnv
+    from training.checkpoints import load_checkpoint
+    from training.services import model_metadata
+
+    policy = load_checkpoint(get_store().get_bytes(keys_for(model.pk).best), model_metadata(model))
+    session = ort.InferenceSession(onnx_bytes, providers=["CPUExecutionProvider"])
+    env = RacingEnv("racecraft_oval", action_space=model.action_space)
+    obs, _ = env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(12):
+        probs = session.run(None, {"observation": obs.transpose(2, 0, 1)[None].astype(np.float32)})
+        torch_action, _ = policy.predict(obs, deterministic=True)
+        assert int(np.argmax(probs[0])) == int(torch_action)
+        obs, *_ = env.step(int(rng.integers(len(model.action_space))))
+    env.close()

@@ -1,0 +1,112 @@
+"""Live data for the console: metrics and video frames sent to a Channels group per job.
+
+Frames are encoded by the rollout worker only while someone watches (a Redis key with a short
+TTL that the websocket consumer keeps alive), at 15 fps at most, and handed to a background
+thread that drops stale frames, so video never slows training.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+import queue
+import threading
+import time
+
+import redis
+from asgiref.sync import async_to_sync
+from channels.layers import get_channel_layer
+from django.conf import settings
+
+log = logging.getLogger(__name__)
+WATCH_TTL_S = 30
+
+
+def job_group(kind: str, job_id: int) -> str:
+    """The Channels group of a job: ``training-<id>`` or ``evaluation-<id>``."""
+    return f"{kind}-{job_id}"
+
+
+def _watch_key(group: str) -> str:
+    return f"{settings.REDIS_PREFIX or ''}racecraft:watching:{group}"
+
+
+def _redis() -> redis.Redis:
+    return redis.Redis.from_url(settings.REDIS_URL)
+
+
+def mark_watching(group: str) -> None:
+    """A viewer is on the page: workers send frames for the next ``WATCH_TTL_S`` seconds."""
+    try:
+        _redis().set(_watch_key(group), "1", ex=WATCH_TTL_S)
+    except redis.RedisError:
+        log.warning("could not mark %s as watched", group)
+
+
+def is_watched(group: str) -> bool:
+    try:
+        return bool(_redis().exists(_watch_key(group)))
+    except redis.RedisError:
+        return False
+
+
+def send(group: str, message: dict) -> None:
+    """Send one message to a group now (metrics, status changes)."""
+    layer = get_channel_layer()
+    if layer is None:
+        return
+    try:
+        async_to_sync(layer.group_send)(group, message)
+    except Exception:  # noqa: BLE001 - live updates are best effort; the job goes on
+        log.warning("could not send a live update to %s", group, exc_info=True)
+
+
+class FramePublisher:
+    """A background sender of video frames: keeps only the newest frame when it falls behind."""
+
+    def __init__(self, group: str) -> None:
+        self.group = group
+        self._queue: queue.Queue = queue.Queue(maxsize=2)
+        self._thread = threading.Thread(target=self._run, name=f"frames-{group}", daemon=True)
+        self._stop = threading.Event()
+        self._watched = False
+        self._checked = 0.0
+        self._thread.start()
+
+    def watched(self) -> bool:
+        now = time.monotonic()
+        if now - self._checked > 1.0:
+            self._checked = now
+            self._watched = is_watched(self.group)
+        return self._watched
+
+    def publish(self, frame: dict) -> None:
+        message = {
+            "type": "job.frame",
+            "camera": base64.b64encode(bytes(frame["camera"])).decode(),
+            "chase": base64.b64encode(bytes(frame["chase"])).decode(),
+            "progress": frame.get("progress"),
+        }
+        try:
+            self._queue.put_nowait(message)
+        except queue.Full:
+            try:
+                self._queue.get_nowait()  # drop the stale frame
+            except queue.Empty:
+                pass
+            try:
+                self._queue.put_nowait(message)
+            except queue.Full:
+                pass
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                message = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            send(self.group, message)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)

@@ -1,0 +1,40 @@
+"""Celery tasks: thin wrappers that take ids and call training.jobs / training.services.
+
+Queues by name (console/celery.py): ``train_*`` → training, ``evaluate_*`` → evaluation.
+Jobs are claimed atomically (a retried or duplicated task finds the job taken and skips), and
+a worker that starts fails the jobs its previous life left running.
+"""
+
+from __future__ import annotations
+
+import socket
+
+from celery import shared_task
+from celery.signals import worker_ready
+
+from training import jobs, services
+
+
+@shared_task(bind=True, name="training.tasks.train_model", acks_late=False)
+def train_model(self, job_id: int) -> str:
+    return jobs.run_training_job(job_id, worker=self.request.hostname or "")
+
+
+@shared_task(bind=True, name="training.tasks.evaluate_model", acks_late=False)
+def evaluate_model(self, evaluation_id: int) -> str:
+    return jobs.run_evaluation_job(evaluation_id, worker=self.request.hostname or "")
+
+
+@shared_task(name="training.tasks.reap_orphans")
+def reap_orphans() -> int:
+    return services.jobs_reap_orphans()
+
+
+@worker_ready.connect
+def _fail_jobs_of_my_previous_life(sender=None, **kwargs) -> None:
+    """Jobs this host was running when its worker died can never finish: fail them now."""
+    from django.db import close_old_connections
+
+    close_old_connections()
+    name = getattr(sender, "hostname", None) or socket.gethostname()
+    services.jobs_fail_for_worker(worker=str(name)[:255])
