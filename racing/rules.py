@@ -51,6 +51,7 @@ REVERSED_STEPS = 15
 IMMOBILIZED_STEPS = 15
 IMMOBILIZED_DISTANCE_M = 0.0003
 MAX_EPISODE_STEPS = 100_000
+STALL_GAIN_M = 0.1
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,13 @@ class RaceRules:
     ``resets``: failures forgiven with a penalty and a respawn (training uses 0).
     Penalties are simulated seconds; ``reversed_penalty_s`` defaults to the off-track one.
     ``time_limit_s``: optional limit on simulated time for the whole episode.
+    ``lap_time_limit_s``: a lap not finished in this much simulated time ends the episode
+    (time up); ``None`` sets it from the track: ``max(180 s, length / 0.4 m/s)``, so a car
+    circling on a wide track cannot hold an episode forever.
+    ``stall_s``: a car that gains no new ground on its lap (0.1 m past its best) for this many
+    simulated seconds is judged immobilized. DeepRacer has no such rule; its narrow tracks do
+    not let a car circle for long, but a wide one does, and such episodes teach nothing.
+    ``None`` turns it off.
     """
 
     laps: int = 1
@@ -71,6 +79,8 @@ class RaceRules:
     immobilized_penalty_s: float = 0.0
     max_steps: int = MAX_EPISODE_STEPS
     time_limit_s: float | None = None
+    lap_time_limit_s: float | None = None
+    stall_s: float | None = 10.0
 
     def __post_init__(self) -> None:
         if self.laps < 1:
@@ -149,7 +159,15 @@ class RaceTracker:
     _last_s: float = 0.0
     _falling: int = 0
     _still: int = 0
+    _best: float = 0.0
+    _best_time: float = 0.0
     _lap: LapRecord | None = None
+
+    @property
+    def _lap_limit(self) -> float:
+        if self.rules.lap_time_limit_s is not None:
+            return self.rules.lap_time_limit_s
+        return max(180.0, self.track_length / 0.4)
 
     def start(self, s: float, sim_time: float = 0.0) -> None:
         self.steps = 0
@@ -162,6 +180,8 @@ class RaceTracker:
         self._last_s = s
         self._falling = 0
         self._still = 0
+        self._best = 0.0
+        self._best_time = sim_time
         self._lap = LapRecord(lap=1, time_s=0.0, status=Status.IN_PROGRESS, progress=0.0)
 
     @property
@@ -218,7 +238,7 @@ class RaceTracker:
             status = Status.OFF_TRACK
         elif self._falling >= REVERSED_STEPS:
             status = Status.REVERSED
-        elif self._still >= IMMOBILIZED_STEPS:
+        elif self._still >= IMMOBILIZED_STEPS or self._stalled():
             status = Status.IMMOBILIZED
 
         if status in FAILURES:
@@ -226,12 +246,23 @@ class RaceTracker:
             if self.resets_used < self.rules.resets:
                 return self._reset(status)
             return self._end(status, truncated=False)
-        if self.steps >= self.rules.max_steps or (
-            self.rules.time_limit_s is not None
+        if (
+            self.steps >= self.rules.max_steps
+            or self.sim_time - self.lap_start_time >= self._lap_limit - 1e-9
+            or self.rules.time_limit_s is not None
             and self.sim_time - self.episode_start_time >= self.rules.time_limit_s - 1e-9
         ):
             return self._end(Status.TIME_UP, truncated=True)
         return Judgement(status, False, False, False, 0.0, False)
+
+    def _stalled(self) -> bool:
+        if self.distance > self._best + STALL_GAIN_M:
+            self._best = self.distance
+            self._best_time = self.sim_time
+            return False
+        return self.rules.stall_s is not None and (
+            self.sim_time - self._best_time >= self.rules.stall_s - 1e-9
+        )
 
     def _count(self, status: Status) -> None:
         lap = self.current_lap
@@ -252,6 +283,7 @@ class RaceTracker:
         self.sim_time += penalty
         self._falling = 0
         self._still = 0
+        self._best_time = self.sim_time
         return Judgement(status, False, False, True, penalty, False)
 
     def respawned_at(self, s: float) -> None:
@@ -266,6 +298,8 @@ class RaceTracker:
         self.laps.append(lap)
         self.distance -= self.track_length
         self.lap_start_time = self.sim_time
+        self._best = self.distance
+        self._best_time = self.sim_time
         self._lap = LapRecord(
             lap=len(self.laps) + 1, time_s=0.0, status=Status.IN_PROGRESS, progress=0.0
         )

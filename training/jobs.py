@@ -32,6 +32,7 @@ from training.rollout import EnvSpec
 from training.runner import IterationResult, TrainingConfig, TrainingHooks, train
 from training.sandbox import SandboxError
 from training.services import _settle_model, job_fail, model_metadata
+from training.signals import evaluation_finished
 from training.storage import ObjectNotFound, StoreError
 from training.store import get_store, keys_for
 from training.vecenv import RolloutError
@@ -324,4 +325,5 @@ def run_evaluation_job(evaluation_id: int, worker: str = "") -> str:
     )  # fmt: skip
     _settle_model(model)
     live.send(group, {"type": "job.status", "status": "COMPLETED", "results": report.to_json()})
+    evaluation_finished.send(sender=EvaluationJob, evaluation_id=job.pk)
     return "completed"

@@ -264,7 +264,7 @@ class TrainingLoop:
                     outcome.progress[i] = float(info["progress"])
                     outcome.statuses[i] = str(info["status"])
                     outcome.lap_times[i] = list(info.get("lap_times", []))
-            if self.stop_reason() == "user":
+            if self.stop_reason():
                 break
         return outcome
 

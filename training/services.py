@@ -35,6 +35,7 @@ from training.models import (
 )
 from training.reward_validation import validate_reward_function
 from training.sandbox import MAX_SOURCE_CHARS, RewardError
+from training.signals import evaluation_finished
 from training.storage import StoreError
 from training.store import get_store, keys_for
 
@@ -501,6 +502,8 @@ def job_stop(*, job: TrainingJob | EvaluationJob, user) -> TrainingJob | Evaluat
             job.stop_requested = True
             job.save(update_fields=["status", "finished_at", "stop_requested"])
             _settle_model(job.model)
+            if isinstance(job, EvaluationJob):
+                evaluation_finished.send(sender=EvaluationJob, evaluation_id=job.pk)
         elif job.status in (JobStatus.INITIALIZING, JobStatus.IN_PROGRESS):
             job.status = JobStatus.STOPPING
             job.stop_requested = True
@@ -525,6 +528,8 @@ def job_fail(*, job: TrainingJob | EvaluationJob, error: str) -> None:
         status=JobStatus.FAILED, error=error[:2000], finished_at=timezone.now()
     )
     _settle_model(job.model, error)
+    if isinstance(job, EvaluationJob):
+        evaluation_finished.send(sender=EvaluationJob, evaluation_id=job.pk)
 
 
 def jobs_reap_orphans(*, stale_after_s: float = 300.0) -> int:

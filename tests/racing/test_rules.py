@@ -146,3 +146,25 @@ def test_status_labels_match_deepracer():
         "immobilized",
         "time_up",
     }
+
+
+def test_a_lap_that_takes_too_long_is_time_up():
+    t = tracker(lap_time_limit_s=2.0)
+    out = drive(t, 0.01, 100)
+    assert out.status is Status.TIME_UP and out.truncated and t.steps == 30
+    default = RaceTracker(RaceRules(), 1000.0)  # 1 km: the limit grows with the track
+    assert default._lap_limit == 2500.0
+    assert RaceTracker(RaceRules(), LENGTH)._lap_limit == 180.0
+
+
+def test_a_car_that_gains_no_ground_is_immobilized():
+    t = tracker(stall_s=2.0)
+    drive(t, 0.1, 10)
+    # Circling: forward and back, never past its best, never 15 falling steps in a row.
+    out = None
+    for i in range(60):
+        out = drive(t, 0.05 if (i // 5) % 2 == 0 else -0.05, 1)
+        if out.done:
+            break
+    assert out.status is Status.IMMOBILIZED and 30 <= i + 1 <= 35  # 2 s after its best
+    assert tracker(stall_s=None)._stalled() is False

@@ -1,0 +1,131 @@
+"""Forms of the league pages: events, submissions and the racer profile. Rules stay in the
+services; forms only parse input."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+from django import forms
+from django.utils import timezone
+
+from leaderboard.models import Division, RacerProfile, RankingMethod, Season
+from training.models import Direction, RaceType, RacingModel
+from training.services import catalog
+
+DATETIME_FORMAT = "%Y-%m-%dT%H:%M"
+
+
+def _track_choices() -> list[tuple[str, str]]:
+    cat = catalog()
+    return [(info.id, info.name) for info in cat.list()]
+
+
+class DateTimeInput(forms.DateTimeInput):
+    input_type = "datetime-local"
+
+    def __init__(self) -> None:
+        super().__init__(format=DATETIME_FORMAT)
+
+
+class EventForm(forms.Form):
+    """The fields of an event. Facilitators also see season and division (public events);
+    racers organising a community race do not."""
+
+    name = forms.CharField(max_length=80)
+    description = forms.CharField(widget=forms.Textarea(attrs={"rows": 3}), required=False)
+    season = forms.ModelChoiceField(queryset=Season.objects.all(), required=False)
+    division = forms.ChoiceField(choices=Division.choices, initial=Division.OPEN)
+    track_id = forms.ChoiceField(label="Track")
+    direction = forms.ChoiceField(choices=Direction.choices, initial=Direction.NATIVE)
+    race_type = forms.ChoiceField(
+        choices=RaceType.choices,
+        initial=RaceType.TIME_TRIAL,
+        help_text="Only time trials run today; the other settings are kept for later.",
+    )
+    opens_at = forms.DateTimeField(
+        label="Opens (UTC)", widget=DateTimeInput(), input_formats=[DATETIME_FORMAT]
+    )
+    closes_at = forms.DateTimeField(
+        label="Closes (UTC)", widget=DateTimeInput(), input_formats=[DATETIME_FORMAT]
+    )
+    ranking_method = forms.ChoiceField(choices=RankingMethod.choices)
+    min_laps = forms.IntegerField(
+        label="Minimum consecutive laps", min_value=1, max_value=5, initial=1
+    )
+    max_laps = forms.IntegerField(
+        label="Maximum laps",
+        min_value=1,
+        max_value=5,
+        initial=3,
+        help_text="The evaluation runs this many laps, at least 3.",
+    )
+    off_track_penalty_s = forms.FloatField(
+        label="Off-track penalty (s)", min_value=0, max_value=60, initial=1.0
+    )
+    collision_penalty_s = forms.FloatField(
+        label="Collision penalty (s)", min_value=0, max_value=60, initial=1.0
+    )
+    max_resets = forms.IntegerField(
+        label="Maximum resets", min_value=0, required=False, help_text="Empty: unlimited."
+    )
+    max_submissions_per_racer = forms.IntegerField(
+        label="Submissions per racer", min_value=1, max_value=999, initial=99
+    )
+    number_of_objects = forms.IntegerField(min_value=0, max_value=12, initial=0)
+    randomize_objects = forms.BooleanField(required=False)
+    bot_count = forms.IntegerField(min_value=0, max_value=6, initial=0)
+    bot_speed_mps = forms.FloatField(label="Bot speed (m/s)", min_value=0.2, max_value=6.0,
+                                     initial=1.0)  # fmt: skip
+    bot_lane_changes = forms.BooleanField(required=False)
+
+    LATER_FIELDS = (
+        "number_of_objects", "randomize_objects", "bot_count", "bot_speed_mps",
+        "bot_lane_changes",
+    )  # fmt: skip
+
+    def __init__(self, *args, public: bool, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.fields["track_id"].choices = _track_choices()
+        if not public:
+            del self.fields["season"]
+            del self.fields["division"]
+        if not self.is_bound and "opens_at" not in self.initial:
+            now = timezone.now().replace(second=0, microsecond=0)
+            self.initial.setdefault("opens_at", now)
+            self.initial.setdefault("closes_at", now + timedelta(days=7))
+
+    def event_fields(self) -> dict:
+        return dict(self.cleaned_data)
+
+
+class SubmitForm(forms.Form):
+    model = forms.ModelChoiceField(queryset=RacingModel.objects.none(), empty_label=None)
+
+    def __init__(self, *args, models, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # Any model id is accepted here; the service says clearly why another racer's model,
+        # or one that is not ready, cannot be submitted.
+        self.fields["model"].queryset = RacingModel.objects.all()
+        self.fields["model"].choices = [(m.pk, m.name) for m in models]
+
+
+class ProfileForm(forms.Form):
+    alias = forms.CharField(
+        max_length=32,
+        required=False,
+        help_text="3-32 letters, digits, - or _. Chosen once: it cannot be changed.",
+    )
+    country = forms.CharField(max_length=2, required=False, help_text="Two letters, e.g. DE.")
+    colour = forms.CharField(
+        max_length=7, initial="#ff9f1c", widget=forms.TextInput(attrs={"type": "color"})
+    )
+
+    def __init__(self, *args, profile: RacerProfile, **kwargs) -> None:
+        kwargs.setdefault(
+            "initial",
+            {"alias": profile.alias or "", "country": profile.country, "colour": profile.colour},
+        )
+        super().__init__(*args, **kwargs)
+        if profile.alias:
+            self.fields["alias"].disabled = True
+            self.fields["alias"].help_text = "Your racer alias is fixed."

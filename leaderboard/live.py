@@ -1,0 +1,39 @@
+"""Live leaderboard updates: one Channels group per event, fed when a result lands."""
+
+from __future__ import annotations
+
+from leaderboard.models import Submission
+from leaderboard.ranking import format_ms
+from leaderboard.selectors import leaderboard_rows
+from training import live
+
+MESSAGE_TYPE = "league.result"
+
+
+def event_group(event_id: int) -> str:
+    """The Channels group of an event's leaderboard: ``league-event-<id>``."""
+    return f"league-event-{event_id}"
+
+
+def result_message(submission: Submission) -> dict:
+    """The whole leaderboard plus the submission that just finished (to highlight it)."""
+    return {
+        "type": MESSAGE_TYPE,
+        "event_id": submission.event_id,
+        "submission": {
+            "id": submission.pk,
+            "racer_id": submission.racer_id,
+            "status": submission.status,
+            "status_label": submission.get_status_display(),
+            "time": format_ms(submission.score_ms),
+            "reason": submission.reason,
+        },
+        "rows": [row.as_dict() for row in leaderboard_rows(submission.event)],
+    }
+
+
+def broadcast_result(submission_id: int) -> None:
+    """Send the event's new leaderboard to everyone watching (best effort)."""
+    submission = Submission.objects.select_related("event").filter(pk=submission_id).first()
+    if submission is not None:
+        live.send(event_group(submission.event_id), result_message(submission))

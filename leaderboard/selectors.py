@@ -1,0 +1,173 @@
+"""Reads for the league pages and the live updates: leaderboards, events, submissions."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from django.db.models import Prefetch, Q, QuerySet
+from django.urls import reverse
+from django.utils import timezone
+
+from leaderboard import ranking
+from leaderboard.access import can_manage_event, can_view_event, is_facilitator
+from leaderboard.divisions import division_for
+from leaderboard.models import (
+    Event,
+    EventEntrant,
+    Notification,
+    RacerProfile,
+    Season,
+    Submission,
+)
+from training.models import RacingModel
+
+
+@dataclass(frozen=True)
+class LeaderboardRow:
+    """One line of a leaderboard, ready for a template or a websocket message."""
+
+    rank: int
+    submission_id: int
+    racer_id: int
+    alias: str
+    country: str
+    colour: str
+    time: str
+    score_ms: int
+    gap: str
+    off_tracks: int
+    collisions: int
+    model_name: str
+    video_url: str
+    detail_url: str
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _removed_racers(event: Event) -> set[int]:
+    if not event.is_private:
+        return set()
+    return set(
+        EventEntrant.objects.filter(event=event, removed_at__isnull=False).values_list(
+            "racer_id", flat=True
+        )
+    )
+
+
+def leaderboard_rows(event: Event) -> list[LeaderboardRow]:
+    """The event's leaderboard: each racer's best ranked submission, in rank order."""
+    removed = _removed_racers(event)
+    ranked = {
+        s.pk: s
+        for s in Submission.objects.filter(event=event, status=Submission.Status.RANKED)
+        .exclude(racer_id__in=removed)
+        .select_related("evaluation")
+    }
+    entries = [
+        ranking.Entry(s.pk, s.racer_id, s.score_ms, s.created_at)
+        for s in ranked.values()
+        if s.score_ms is not None
+    ]
+    board = ranking.leaderboard(entries)
+    profiles = {
+        p.user_id: p
+        for p in RacerProfile.objects.filter(user_id__in=[r.entry.racer_id for r in board])
+    }
+    rows = []
+    for row in board:
+        sub = ranked[row.entry.submission_id]
+        profile = profiles.get(sub.racer_id)
+        rows.append(
+            LeaderboardRow(
+                rank=row.rank,
+                submission_id=sub.pk,
+                racer_id=sub.racer_id,
+                alias=(profile.alias if profile and profile.alias else f"racer-{sub.racer_id}"),
+                country=profile.country if profile else "",
+                colour=profile.colour if profile else "#ff9f1c",
+                time=ranking.format_ms(row.entry.score_ms),
+                score_ms=row.entry.score_ms,
+                gap=ranking.format_gap(row.gap_ms),
+                off_tracks=sub.off_tracks,
+                collisions=sub.collisions,
+                model_name=sub.model_name,
+                video_url=(
+                    reverse("league-submission-video", args=[sub.pk]) if sub.has_video else ""
+                ),
+                detail_url=reverse("league-submission", args=[sub.pk]),
+            )
+        )
+    return rows
+
+
+def seasons_with_events(user) -> list[Season]:
+    public = Event.objects.filter(is_private=False).order_by("opens_at")
+    return list(Season.objects.prefetch_related(Prefetch("events", queryset=public)))
+
+
+def open_events_for(user) -> QuerySet[Event]:
+    """Public events open now; for a signed-in racer, those of their division this month."""
+    now = timezone.now()
+    events = Event.objects.filter(is_private=False, opens_at__lte=now, closes_at__gt=now)
+    if user.is_authenticated and not is_facilitator(user):
+        events = events.filter(division=division_for(user, now))
+    return events.order_by("closes_at")
+
+
+def upcoming_and_recent_events() -> tuple[QuerySet[Event], QuerySet[Event]]:
+    now = timezone.now()
+    public = Event.objects.filter(is_private=False)
+    upcoming = public.filter(opens_at__gt=now).order_by("opens_at")[:10]
+    recent = public.filter(closes_at__lte=now).order_by("-closes_at")[:10]
+    return upcoming, recent
+
+
+def community_races_for(user) -> QuerySet[Event]:
+    if not user.is_authenticated:
+        return Event.objects.none()
+    return (
+        Event.objects.filter(is_private=True)
+        .filter(Q(organiser=user) | Q(entrants__racer=user, entrants__removed_at__isnull=True))
+        .distinct()
+        .order_by("-closes_at")
+    )
+
+
+def submissions_of(event: Event, user) -> QuerySet[Submission]:
+    if not user.is_authenticated:
+        return Submission.objects.none()
+    return Submission.objects.filter(event=event, racer=user).select_related("evaluation")
+
+
+def all_submissions(event: Event) -> QuerySet[Submission]:
+    return Submission.objects.filter(event=event).select_related("evaluation", "racer")
+
+
+def entrants_of(event: Event) -> QuerySet[EventEntrant]:
+    return EventEntrant.objects.filter(event=event).select_related("racer").order_by("joined_at")
+
+
+def ready_models_of(user) -> QuerySet[RacingModel]:
+    if not user.is_authenticated:
+        return RacingModel.objects.none()
+    return RacingModel.objects.filter(
+        owner=user, status=RacingModel.Status.READY, has_checkpoint=True
+    ).order_by("name")
+
+
+def notifications_for(user, limit: int = 20) -> list[Notification]:
+    if not user.is_authenticated:
+        return []
+    return list(Notification.objects.filter(user=user)[:limit])
+
+
+def can_watch_submission(user, submission: Submission) -> bool:
+    """Anyone who can see the event may watch a ranked run; the racer and the event's
+    managers may watch every run."""
+    event = submission.event
+    if user.is_authenticated and submission.racer_id == user.pk:
+        return True
+    if can_manage_event(user, event):
+        return True
+    return submission.status == Submission.Status.RANKED and can_view_event(user, event)

@@ -1,0 +1,35 @@
+"""The league learns about finished evaluations: ``post_save`` on EvaluationJob (rows saved
+with ``save()``) and training's ``evaluation_finished`` (jobs finished with ``update()``).
+Both lead to the idempotent :func:`~leaderboard.services.submission_record_result`."""
+
+from __future__ import annotations
+
+import logging
+
+from django.db.models.signals import post_save
+from django.dispatch import receiver
+
+from training.models import FINISHED_JOB_STATUSES, EvaluationJob
+from training.signals import evaluation_finished
+
+log = logging.getLogger(__name__)
+
+
+def _record(evaluation_id: int) -> None:
+    from leaderboard.services import submission_record_result
+
+    try:
+        submission_record_result(evaluation_id=evaluation_id)
+    except Exception:  # noqa: BLE001 - never break the job's own bookkeeping; reconcile retries
+        log.exception("could not record the result of evaluation %s", evaluation_id)
+
+
+@receiver(post_save, sender=EvaluationJob, dispatch_uid="league-evaluation-saved")
+def evaluation_saved(sender, instance: EvaluationJob, **kwargs) -> None:
+    if instance.purpose == "submission" and instance.status in FINISHED_JOB_STATUSES:
+        _record(instance.pk)
+
+
+@receiver(evaluation_finished, sender=EvaluationJob, dispatch_uid="league-evaluation-finished")
+def evaluation_done(sender, evaluation_id: int, **kwargs) -> None:
+    _record(evaluation_id)

@@ -1,0 +1,47 @@
+"""League URLs, included at /league/ by console/urls.py.
+
+/league/                                   home: seasons, open events, notifications, profile
+/league/events/new/                        a league event (race facilitators)
+/league/community/new/                     a community race (any racer)
+/league/events/<id>/                       the leaderboard (?screen=1: wide-screen mode)
+/league/events/<id>/screen/                wide-screen mode
+/league/events/<id>/edit|submit|close|invite/reset/
+/league/events/<id>/participants/<racer>/remove/
+/league/join/<token>/                      a community race's invite link
+/league/submissions/<id>/[video.mp4]       a submission's lap table and video
+Websocket: /ws/league/events/<id>/ (leaderboard/routing.py)
+"""
+
+from __future__ import annotations
+
+from django.urls import path
+
+from leaderboard import views
+
+urlpatterns = [
+    path("", views.league_home, name="league"),
+    path("events/new/", views.event_create, name="league-event-create"),
+    path("community/new/", views.community_create, name="league-community-create"),
+    path("events/<int:event_id>/", views.event_detail, name="league-event"),
+    path("events/<int:event_id>/screen/", views.event_screen, name="league-event-screen"),
+    path("events/<int:event_id>/edit/", views.event_edit, name="league-event-edit"),
+    path("events/<int:event_id>/submit/", views.event_submit, name="league-event-submit"),
+    path("events/<int:event_id>/close/", views.event_close, name="league-event-close"),
+    path(
+        "events/<int:event_id>/invite/reset/",
+        views.event_invite_reset,
+        name="league-event-invite-reset",
+    ),
+    path(
+        "events/<int:event_id>/participants/<int:racer_id>/remove/",
+        views.event_participant_remove,
+        name="league-participant-remove",
+    ),
+    path("join/<str:token>/", views.event_join, name="league-join"),
+    path("submissions/<int:submission_id>/", views.submission_detail, name="league-submission"),
+    path(
+        "submissions/<int:submission_id>/video.mp4",
+        views.submission_video,
+        name="league-submission-video",
+    ),
+]

@@ -1,0 +1,12 @@
+"""Signals other apps may listen to (training itself never knows who listens).
+
+``evaluation_finished``: sent with ``sender=EvaluationJob`` and ``evaluation_id=<pk>`` after an
+evaluation job reaches COMPLETED, FAILED or CANCELED. Jobs finish through ``QuerySet.update``,
+which sends no ``post_save``, hence this signal.
+"""
+
+from __future__ import annotations
+
+from django.dispatch import Signal
+
+evaluation_finished = Signal()
