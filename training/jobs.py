@@ -246,13 +246,14 @@ def run_training_job(job_id: int, worker: str = "") -> str:
         return "failed"
     finally:
         hooks.close()
-    TrainingJob.objects.filter(pk=job.pk).update(
-        status=JobStatus.COMPLETED, finished_at=timezone.now(), stopped_by=summary.stopped_by
-    )
     model.refresh_from_db()
     if model.has_checkpoint:
         _export_car(model)
-    _settle_model(model, "training stopped before the first iteration finished")
+    with transaction.atomic():  # the job and its model change state together
+        _settle_model(model, "training stopped before the first iteration finished")
+        TrainingJob.objects.filter(pk=job.pk).update(
+            status=JobStatus.COMPLETED, finished_at=timezone.now(), stopped_by=summary.stopped_by
+        )
     live.send(live.job_group("training", job.pk), {"type": "job.status", "status": "COMPLETED"})
     return "completed"
 
@@ -319,11 +320,12 @@ def run_evaluation_job(evaluation_id: int, worker: str = "") -> str:
         log.exception("evaluation %s failed", evaluation_id)
         job_fail(job=job, error=f"evaluation failed: {type(exc).__name__}: {exc}")
         return "failed"
-    EvaluationJob.objects.filter(pk=job.pk).update(
-        status=JobStatus.COMPLETED, finished_at=timezone.now(), results=report.to_json(),
-        laps_done=report.completed_laps, has_video=bool(report.video_mp4),
-    )  # fmt: skip
-    _settle_model(model)
+    with transaction.atomic():
+        _settle_model(model)
+        EvaluationJob.objects.filter(pk=job.pk).update(
+            status=JobStatus.COMPLETED, finished_at=timezone.now(), results=report.to_json(),
+            laps_done=report.completed_laps, has_video=bool(report.video_mp4),
+        )  # fmt: skip
     live.send(group, {"type": "job.status", "status": "COMPLETED", "results": report.to_json()})
     evaluation_finished.send(sender=EvaluationJob, evaluation_id=job.pk)
     return "completed"
