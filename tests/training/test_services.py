@@ -194,10 +194,9 @@ def test_orphaned_jobs_are_noticed(alice):
 
 def test_a_restarted_worker_fails_its_old_jobs(alice):
     model = create(alice)
-    job = EvaluationJob.objects.create(model=model, track_id="racecraft_oval",
-                                       status=JobStatus.IN_PROGRESS, worker="w1@host")  # fmt: skip
-    other = EvaluationJob.objects.create(model=model, track_id="racecraft_oval",
-                                         status=JobStatus.IN_PROGRESS, worker="w2@host")  # fmt: skip
+    running = {"track_id": "racecraft_oval", "status": JobStatus.IN_PROGRESS}
+    job = EvaluationJob.objects.create(model=model, worker="w1@host", **running)
+    other = EvaluationJob.objects.create(model=model, worker="w2@host", **running)
     assert services.jobs_fail_for_worker(worker="w1@host") == 1
     job.refresh_from_db()
     other.refresh_from_db()
