@@ -37,7 +37,7 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "tracks"
 ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, -15, 0, 15, 30) for v in (1.5, 3.0)]
 
 # Pays the speed made good along the track, more near the centre line; nearly nothing off it.
-REWARD = '''
+REWARD = """
 import math
 
 def reward_function(params):
@@ -51,7 +51,7 @@ def reward_function(params):
     along = params["speed"] * math.cos(error)
     centre = 1.0 - params["distance_from_center"] / (params["track_width"] / 2)
     return max(1e-3, along * (0.5 + 0.5 * centre))
-'''
+"""
 
 
 @dataclass
@@ -110,7 +110,10 @@ def run_one(track: str, network: str, minutes: float, scratch: Path, seed: int) 
         spec=track_spec(track, scratch),
         network=network,
         hyperparameters=Hyperparameters(
-            batch_size=64, num_epochs=10, lr=3e-4, discount_factor=0.99,
+            batch_size=64,
+            num_epochs=10,
+            lr=3e-4,
+            discount_factor=0.99,
             num_episodes_between_training=20,
         ),  # fmt: skip
         max_minutes=minutes,
@@ -143,8 +146,10 @@ def main() -> None:
                 runs.append(run_one(track, network, args.minutes, Path(tmp), args.seed))
 
     print()
-    header = (f"{'track':<18}{'network':<36}{'to 3x3 laps':>12}{'iters':>7}{'steps':>8}"
-              f"{'rollout':>9}{'update':>8}{'eval':>7}  lap times of the 3 evaluations (s)")  # fmt: skip
+    header = (
+        f"{'track':<18}{'network':<36}{'to 3x3 laps':>12}{'iters':>7}{'steps':>8}"
+        f"{'rollout':>9}{'update':>8}{'eval':>7}  lap times of the 3 evaluations (s)"
+    )
     print(header)
     for r in runs:
         took = f"{r.seconds:.1f} s" if r.seconds is not None else f">{r.wall_s:.0f} s"

@@ -272,6 +272,7 @@ class ConsoleOptions:
     queues: Sequence[str] = QUEUES
     redis_url: str | None = None
     embedded_socket: Path = Path("var/redis/redis.sock")
+    var_dir: Path = Path("var")
     env: Mapping[str, str] = field(default_factory=lambda: dict(os.environ))
 
 
@@ -283,6 +284,9 @@ def web_spec(options: ConsoleOptions, env: Mapping[str, str]) -> ChildSpec:
 def worker_spec(options: ConsoleOptions, env: Mapping[str, str]) -> ChildSpec:
     argv = [sys.executable, "-m", "celery", "-A", "console", "worker", "--loglevel", "INFO"]
     argv += ["-Q", ",".join(options.queues), "--concurrency", str(options.concurrency)]
+    # One machine, one scheduler: the worker also runs beat (orphan checks, league months).
+    schedule = options.var_dir / "celerybeat-schedule"
+    argv += ["--beat", "--schedule", str(schedule)]
     return ChildSpec(name="worker", argv=[*argv, "--hostname", "racecraft@%h"], env=env)
 
 

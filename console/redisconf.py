@@ -31,7 +31,7 @@ def channel_layers(redis_url: str, prefix: str) -> dict[str, Any]:
     """The CHANNEL_LAYERS setting: channels_redis on ``redis_url``, keys under ``prefix``."""
     return {
         "default": {
-            "BACKEND": "channels_redis.core.RedisChannelLayer",
+            "BACKEND": "console.channel_layer.RacecraftChannelLayer",
             "CONFIG": {"hosts": [redis_url], "prefix": f"{prefix}asgi"},
         }
     }

@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import dj_database_url
+from celery.schedules import crontab
 from django.core.exceptions import ImproperlyConfigured
 
 from console.env import bucket_name, envbool, envint, envlist, envstr
@@ -93,9 +94,7 @@ else:
     }
 if DATABASES["default"]["ENGINE"] == "django.db.backends.sqlite3":
     # Tests on SQLite use a file, so that a real Celery worker process can share it.
-    DATABASES["default"].setdefault("TEST", {}).setdefault(
-        "NAME", str(VAR_DIR / "test-db.sqlite3")
-    )
+    DATABASES["default"].setdefault("TEST", {}).setdefault("NAME", str(VAR_DIR / "test-db.sqlite3"))
     # The web server and the Celery worker write at the same time: WAL lets readers go on
     # while one writes, IMMEDIATE takes the write lock up front instead of failing mid-way.
     DATABASES["default"].setdefault("OPTIONS", {}).update(
@@ -153,6 +152,22 @@ CELERY_RESULT_EXPIRES = 24 * 3600
 # Jobs are long: a worker takes one task at a time, so others stay free for idle workers.
 CELERY_WORKER_PREFETCH_MULTIPLIER = 1
 CELERY_WORKER_CONCURRENCY = envint("CELERY_WORKER_CONCURRENCY", 2, minimum=1)
+# Periodic tasks (celery beat): the league's month-end promotion (daily, idempotent: catches
+# up a missed night) and its safety net for results whose signal was missed.
+CELERY_BEAT_SCHEDULE = {
+    "league-promote-divisions": {
+        "task": "leaderboard.tasks.promote_divisions",
+        "schedule": crontab(minute=10, hour=0),
+    },
+    "league-reconcile-submissions": {
+        "task": "leaderboard.tasks.reconcile_submissions",
+        "schedule": 60.0,
+    },
+    "training-reap-orphans": {
+        "task": "training.tasks.reap_orphans",
+        "schedule": 120.0,
+    },
+}
 
 # Object store: MinIO when MINIO_ENDPOINT is set, else a local folder (STORE_DIR).
 MINIO_ENDPOINT = envstr("MINIO_ENDPOINT")
@@ -165,6 +180,10 @@ if MINIO_ENDPOINT and not (MINIO_ACCESS_KEY and MINIO_SECRET_KEY):
 STORE_DIR = Path(envstr("STORE_DIR", str(VAR_DIR / "store")))
 
 # Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
+# Training: rollouts on this machine (0) or on that many `-Q simulation` workers elsewhere.
+RACECRAFT_REMOTE_ROLLOUT_SLOTS = envint("RACECRAFT_REMOTE_ROLLOUT_SLOTS", 0, minimum=0)
+RACECRAFT_MAX_MODELS_PER_USER = envint("RACECRAFT_MAX_MODELS_PER_USER", 50, minimum=1)
+RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = envint("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER", 2, minimum=1)
 RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks")))
 
 LOGGING = {

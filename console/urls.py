@@ -1,16 +1,22 @@
 """URL map of the console.
 
-/                 home                  /tracks/            track gallery
-/tracks/<id>.png  track preview         /models/, /league/  sections of later issues
-/admin/           Django admin          /accounts/          login/logout (later issue)
+/                          home                 /tracks/, /tracks/<id>.png   track gallery
+/accounts/signup|login|logout/                  /admin/                      Django admin
+/models/                   your models          /models/new/, /models/import/
+/models/<id>/              a model's page       .../clone/, .../delete/, .../train/
+/models/<id>/download/<car|virtual|logs>/       /evaluations/<id>/video.mp4
+/jobs/training/<id>/stop/  /evaluations/<id>/stop/                           stop a job
+/api/reward/validate       the reward function's Validate button (JSON)
+/league/                   the league (leaderboard app)
 """
 
 from __future__ import annotations
 
 from django.contrib import admin
-from django.urls import path, register_converter
+from django.contrib.auth import views as auth_views
+from django.urls import include, path, register_converter
 
-from console import views
+from console.views import accounts, api, downloads, model_page, models, pages
 
 
 class TrackIdConverter:
@@ -28,11 +34,41 @@ class TrackIdConverter:
 register_converter(TrackIdConverter, "track")
 
 urlpatterns = [
-    path("", views.home, name="home"),
-    path("tracks/", views.track_gallery, name="track-gallery"),
-    path("tracks/<track:track_id>.png", views.track_preview, name="track-preview"),
-    path("models/", views.coming_soon, {"nav": "models", "title": "Models"}, name="models"),
-    path("league/", views.coming_soon, {"nav": "league", "title": "League"}, name="league"),
-    # path("accounts/", include("django.contrib.auth.urls")),  # login/logout: later issue
+    path("", pages.home, name="home"),
+    path("tracks/", pages.track_gallery, name="track-gallery"),
+    path("tracks/<track:track_id>.png", pages.track_preview, name="track-preview"),
+    # accounts
+    path("accounts/signup/", accounts.signup, name="signup"),
+    path(
+        "accounts/login/",
+        auth_views.LoginView.as_view(redirect_authenticated_user=True),
+        name="login",
+    ),
+    path("accounts/logout/", auth_views.LogoutView.as_view(next_page="home"), name="logout"),
+    # models
+    path("models/", models.model_list, name="models"),
+    path("models/new/", models.model_create, name="model-create"),
+    path("models/import/", models.model_import, name="model-import"),
+    path("models/<int:model_id>/", model_page.model_detail, name="model-detail"),
+    path("models/<int:model_id>/clone/", models.model_clone, name="model-clone"),
+    path("models/<int:model_id>/delete/", models.model_delete, name="model-delete"),
+    path("models/<int:model_id>/train/", model_page.training_start, name="training-start"),
+    path("models/<int:model_id>/evaluate/", model_page.evaluation_start, name="evaluation-start"),
+    path(
+        "models/<int:model_id>/download/<str:kind>/",
+        downloads.model_download,
+        name="model-download",
+    ),
+    path("jobs/training/<int:job_id>/stop/", model_page.training_stop, name="training-stop"),
+    path(
+        "evaluations/<int:evaluation_id>/stop/", model_page.evaluation_stop, name="evaluation-stop"
+    ),
+    path(
+        "evaluations/<int:evaluation_id>/video.mp4",
+        downloads.evaluation_video,
+        name="evaluation-video",
+    ),
+    path("api/reward/validate", api.reward_validate, name="reward-validate"),
+    path("league/", include("leaderboard.urls")),
     path("admin/", admin.site.urls),
 ]

@@ -19,7 +19,7 @@ from racing.env import RacingEnv
 from racing.rules import STATUS_LABELS, LapRecord, Status
 from racing.sensors import ground_for
 from racing.views import ChaseView
-from training.rollout import EnvSpec
+from training.rollout import EnvSpec, FrameGrabber
 
 MIN_LAPS, MAX_LAPS = 3, 5
 DEFAULT_RESETS = 10_000
@@ -198,12 +198,15 @@ def evaluate(
     *,
     on_progress: Callable[[dict], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
+    on_frame: Callable[[dict], None] | None = None,
+    frames_wanted: Callable[[], bool] | None = None,
 ) -> EvaluationReport:
     """Drive ``policy`` (observation → action) for ``settings.laps`` laps from the start line.
 
     ``on_progress`` gets ``{"lap", "laps_done", "progress", "frame"?}`` about 15 times per
     simulated second of driving; ``should_stop`` is polled every step (a stopped evaluation
-    keeps what it measured).
+    keeps what it measured); ``on_frame`` gets live JPEG frames (camera and chase view, 15 fps
+    at most) while ``frames_wanted()`` says someone watches.
     """
     started = time.monotonic()
     start_wall = time.time()
@@ -211,6 +214,7 @@ def evaluate(
     video = VideoWriter() if settings.record_video else None
     chase = ChaseView(ground_for(env.track, resolution=0.01, rgb=True)) if video else None
     obs, _ = env.reset(seed=0)
+    grabber = FrameGrabber(env) if on_frame is not None else None
     rows: list[list] = []
     stopped = False
     info: dict = {}
@@ -221,6 +225,14 @@ def evaluate(
             rows.append(list(info["trace"].stamped()))
             if video is not None and chase is not None:
                 video.add(chase.render(env.pose, env.objects), obs[..., 0])
+            if (
+                grabber is not None
+                and on_frame is not None
+                and (frames_wanted is None or frames_wanted())
+            ):
+                frame = grabber.grab(obs)
+                if frame is not None:
+                    on_frame(frame)
             if on_progress is not None:
                 on_progress({"lap": info["lap"], "laps_done": len(info["laps"]),
                              "progress": info["progress"], "status": info["status"]})  # fmt: skip

@@ -211,6 +211,17 @@ def _claim(job_model, job_id: int, worker: str):
     return job
 
 
+def _remote_rollouts() -> dict | None:
+    """Rollouts on the ``simulation`` queue when RACECRAFT_REMOTE_ROLLOUT_SLOTS > 0."""
+    from django.conf import settings
+
+    slots = int(getattr(settings, "RACECRAFT_REMOTE_ROLLOUT_SLOTS", 0))
+    if slots <= 0:
+        return None
+    return {"redis_url": settings.REDIS_URL, "prefix": settings.REDIS_PREFIX or "",
+            "slots": slots}  # fmt: skip
+
+
 def run_training_job(job_id: int, worker: str = "") -> str:
     job = _claim(TrainingJob, job_id, worker)
     if job is None:
@@ -234,6 +245,7 @@ def run_training_job(job_id: int, worker: str = "") -> str:
             reward_source=model.reward_function,
             seed=model.seed,
             initial_checkpoint=initial,
+            remote=_remote_rollouts(),
         )
         _set_status(job, JobStatus.IN_PROGRESS)
         summary = train(config, hooks)
@@ -304,9 +316,19 @@ def run_evaluation_job(evaluation_id: int, worker: str = "") -> str:
                 ).exists()
             return state["stop"]
 
-        report = evaluate(sb3_policy(policy_model),
-                          env_spec(model, track_id=job.track_id, direction=job.direction),
-                          settings, on_progress=on_progress, should_stop=should_stop)  # fmt: skip
+        frames = live.FramePublisher(group)
+        try:
+            report = evaluate(
+                sb3_policy(policy_model),
+                env_spec(model, track_id=job.track_id, direction=job.direction),
+                settings,
+                on_progress=on_progress,
+                should_stop=should_stop,
+                on_frame=frames.publish,
+                frames_wanted=frames.watched,
+            )
+        finally:
+            frames.close()
         store.put_bytes(keys.evaluation_metrics(job.pk),
                         json.dumps(report.metrics_json()).encode(), "application/json")  # fmt: skip
         store.put_bytes(keys.evaluation_simtrace(job.pk, 0), csv_text(report.rows).encode(),

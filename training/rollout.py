@@ -170,7 +170,7 @@ class FrameGrabber:
             "camera": np.frombuffer(cam_jpg.tobytes(), dtype=np.uint8),
             "chase": np.frombuffer(chase_jpg.tobytes(), dtype=np.uint8),
             "progress": round(self.env.tracker.progress, 2),
-            "status": self.env.params.get("is_offtrack") and "off_track" or "in_progress",
+            "lap": self.env.tracker.lap_number,
         }
 
 

@@ -55,6 +55,8 @@ class TrainingConfig:
     eval_from_start_line: bool = False
     initial_checkpoint: bytes | None = None
     torch_threads: int = 2
+    remote: dict | None = None
+    """Rollouts on simulation machines: ``{"redis_url", "prefix", "slots"}`` (None: here)."""
 
 
 @dataclass
@@ -167,6 +169,7 @@ class TrainingLoop:
             reward_source=config.reward_source,
             reward_function=config.reward_function,
             num_workers=config.num_workers,
+            remote=config.remote,
         )
         eval_spec = config.spec
         if config.eval_laps > 1 or config.eval_from_start_line:

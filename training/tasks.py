@@ -25,6 +25,14 @@ def evaluate_model(self, evaluation_id: int) -> str:
     return jobs.run_evaluation_job(evaluation_id, worker=self.request.hostname or "")
 
 
+@shared_task(name="training.tasks.simulate_rollout", acks_late=False)
+def simulate_rollout(**kwargs) -> str:
+    """A rollout worker for a trainer on another machine (queue ``simulation``)."""
+    from training.remote import serve_rollout
+
+    return serve_rollout(**kwargs)
+
+
 @shared_task(name="training.tasks.reap_orphans")
 def reap_orphans() -> int:
     return services.jobs_reap_orphans()

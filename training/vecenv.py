@@ -13,7 +13,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
@@ -125,7 +124,67 @@ def worker_main(ctx) -> dict:
     return {"closed": True}
 
 
-class SandboxedVecEnv(_RunnerVecEnv):
+class _WorkerVecEnv(_RunnerVecEnv):
+    """Envs hosted by workers that answer reset/step commands (``sizes[i]`` envs each);
+    subclasses say how a command reaches them (:meth:`_exchange`). Replies are checked, never
+    trusted: a malformed one is an error."""
+
+    sizes: list[int]
+
+    def _exchange(self, messages: list[dict]) -> list[dict]:
+        raise NotImplementedError
+
+    def _obs(self, part: Any, size: int) -> np.ndarray:
+        shape = (size, *self.observation_space.shape)
+        if not isinstance(part, np.ndarray) or part.dtype != np.uint8 or part.shape != shape:
+            raise RolloutError("a simulation worker sent observations of the wrong shape")
+        return part
+
+    def reset(self) -> np.ndarray:
+        seeds, options, msgs, start = self._seeds, self._options, [], 0
+        for size in self.sizes:
+            msgs.append({"cmd": "reset", "seeds": seeds[start : start + size],
+                         "options": options[start : start + size]})  # fmt: skip
+            start += size
+        self._seeds = [None] * self.num_envs
+        self._reset_options()
+        replies = self._exchange(msgs)
+        return np.concatenate(
+            [self._obs(r.get("obs"), s) for r, s in zip(replies, self.sizes, strict=True)]
+        )
+
+    def step_wait(self):
+        actions = self._actions
+        msgs, start = [], 0
+        for i, size in enumerate(self.sizes):
+            part = actions[start : start + size]
+            msgs.append({"cmd": "step", "actions": part, "frames": self.want_frames and i == 0})
+            start += size
+        replies = self._exchange(msgs)
+        obs, rewards, dones, infos = [], [], [], []
+        for reply, size in zip(replies, self.sizes, strict=True):
+            obs.append(self._obs(reply.get("obs"), size))
+            r = np.asarray(reply.get("rewards"), dtype=np.float32)
+            d = np.asarray(reply.get("dones"), dtype=bool)
+            info = reply.get("infos")
+            if (
+                r.shape != (size,)
+                or d.shape != (size,)
+                or not isinstance(info, list)
+                or len(info) != size
+            ):
+                raise RolloutError("a simulation worker sent a malformed step")
+            for item in info:
+                term = item.get("terminal_observation") if isinstance(item, dict) else None
+                if term is not None:
+                    self._obs(term[None], 1)
+            rewards.append(r)
+            dones.append(d)
+            infos.extend(info)
+        return np.concatenate(obs), np.concatenate(rewards), np.concatenate(dones), infos
+
+
+class SandboxedVecEnv(_WorkerVecEnv):
     """``num_envs`` envs spread over ``num_workers`` sandboxed processes running the user's
     reward source. Raises :class:`RolloutError` with a plain message when a worker fails."""
 
@@ -187,55 +246,6 @@ class SandboxedVecEnv(_RunnerVecEnv):
             replies.append(reply.value)
         return replies
 
-    def _obs(self, part: Any, size: int) -> np.ndarray:
-        shape = (size, *self.observation_space.shape)
-        if not isinstance(part, np.ndarray) or part.dtype != np.uint8 or part.shape != shape:
-            raise RolloutError("a simulation worker sent observations of the wrong shape")
-        return part
-
-    def reset(self) -> np.ndarray:
-        seeds, options, msgs, start = self._seeds, self._options, [], 0
-        for size in self.sizes:
-            msgs.append({"cmd": "reset", "seeds": seeds[start : start + size],
-                         "options": options[start : start + size]})  # fmt: skip
-            start += size
-        self._seeds = [None] * self.num_envs
-        self._reset_options()
-        replies = self._exchange(msgs)
-        return np.concatenate(
-            [self._obs(r.get("obs"), s) for r, s in zip(replies, self.sizes, strict=True)]
-        )
-
-    def step_wait(self):
-        actions = self._actions
-        msgs, start = [], 0
-        for i, size in enumerate(self.sizes):
-            part = actions[start : start + size]
-            msgs.append({"cmd": "step", "actions": part, "frames": self.want_frames and i == 0})
-            start += size
-        replies = self._exchange(msgs)
-        obs, rewards, dones, infos = [], [], [], []
-        for reply, size in zip(replies, self.sizes, strict=True):
-            obs.append(self._obs(reply.get("obs"), size))
-            r = np.asarray(reply.get("rewards"), dtype=np.float32)
-            d = np.asarray(reply.get("dones"), dtype=bool)
-            info = reply.get("infos")
-            if (
-                r.shape != (size,)
-                or d.shape != (size,)
-                or not isinstance(info, list)
-                or len(info) != size
-            ):
-                raise RolloutError("a simulation worker sent a malformed step")
-            for item in info:
-                term = item.get("terminal_observation") if isinstance(item, dict) else None
-                if term is not None:
-                    self._obs(term[None], 1)
-            rewards.append(r)
-            dones.append(d)
-            infos.extend(info)
-        return np.concatenate(obs), np.concatenate(rewards), np.concatenate(dones), infos
-
     def close(self) -> None:
         for worker in self.workers:
             try:
@@ -253,12 +263,22 @@ def make_vec_env(
     reward_source: str | None = None,
     reward_function: Callable[[dict], float] | None = None,
     num_workers: int = 2,
+    remote: dict | None = None,
 ) -> VecEnv:
-    """Sandboxed workers for a user's ``reward_source``; in-process for a trusted callable."""
+    """Sandboxed workers for a user's ``reward_source`` (on this machine, or on simulation
+    machines when ``remote`` gives ``{"redis_url", "prefix", "slots"}``); in-process for a
+    trusted callable."""
+    if reward_source is not None and remote:
+        from training.remote import RemoteVecEnv
+
+        return RemoteVecEnv(
+            spec,
+            num_envs,
+            reward_source,
+            num_slots=int(remote["slots"]),
+            redis_url=remote["redis_url"],
+            prefix=remote.get("prefix", ""),
+        )
     if reward_source is not None:
         return SandboxedVecEnv(spec, num_envs, reward_source, num_workers=num_workers)
     return LocalVecEnv(spec, num_envs, reward_function)
-
-
-def space_of(env: VecEnv) -> tuple[gym.Space, gym.Space]:
-    return env.observation_space, env.action_space

@@ -101,7 +101,9 @@ def test_embedded_redis_serves_redis_py_and_celery_urls(short_dir: Path) -> None
         assert client.get("k") == b"v"
         client.close()
         # Celery's spelling of the same socket reaches the same database.
-        app = Celery("probe", broker=celery_url(embedded.url.replace("db=0", "db=2")))
+        app = Celery(
+            "probe", broker=celery_url(embedded.url.replace("db=0", "db=2")), set_as_current=False
+        )
         with app.connection_for_write() as conn:
             assert conn.default_channel.client.get("k") == b"v"
         with pytest.raises(LaunchError, match="already answers"):
@@ -160,7 +162,10 @@ def test_manage_py_up_serves_runs_tasks_and_stops_on_sigterm(short_dir: Path) ->
         # The worker answers a ping through the embedded Redis under var/.
         socket_path = var_dir / "redis" / "redis.sock"
         assert socket_path.exists()
-        probe = Celery("probe", broker=celery_url(f"unix://{socket_path}?db=0"))
+        # Not the current app: shared tasks elsewhere in the session must keep the real one.
+        probe = Celery(
+            "probe", broker=celery_url(f"unix://{socket_path}?db=0"), set_as_current=False
+        )
         probe.conf.result_backend = probe.conf.broker_url
         result = probe.send_task("console.tasks.ping", args=["from-test"], queue="default")
         assert result.get(timeout=120) == "from-test"

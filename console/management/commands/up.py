@@ -17,8 +17,8 @@ from console.launcher import ConsoleOptions, LaunchError, console_run
 
 class Command(BaseCommand):
     help = (
-        "Migrate the database, then run the web server and a Celery worker (and an embedded "
-        "Redis when REDIS_URL is unset) until Ctrl-C."
+        "Build the browser assets, migrate the database, then run the web server and a "
+        "Celery worker (and an embedded Redis when REDIS_URL is unset) until Ctrl-C."
     )
 
     def add_arguments(self, parser: ArgumentParser) -> None:
@@ -32,6 +32,12 @@ class Command(BaseCommand):
         )
 
     def handle(self, *args: Any, host: str, port: int, concurrency: int, **options: Any) -> None:
+        try:
+            call_command("build_assets", verbosity=options["verbosity"])
+        except CommandError as exc:
+            # The console works without the bundle: the reward editor falls back to a plain
+            # text box (no highlighting) until Node.js/npm can build it.
+            self.stderr.write(f"warning: the code editor could not be built: {exc}")
         call_command("migrate", interactive=False, verbosity=options["verbosity"])
         connections.close_all()
         launch = ConsoleOptions(
@@ -40,6 +46,7 @@ class Command(BaseCommand):
             concurrency=concurrency,
             redis_url=os.environ.get("REDIS_URL") or None,
             embedded_socket=settings.EMBEDDED_REDIS_SOCKET,
+            var_dir=settings.VAR_DIR,
         )
         try:
             console_run(launch, out=sys.stdout)

@@ -1,0 +1,96 @@
+"""Small forms of the console: sign-up, import, clone and evaluate. The create-model form
+lives in console/model_form.py."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from django import forms
+from django.contrib.auth.forms import UserCreationForm
+from django.core.validators import RegexValidator
+
+from console import tracks
+from training.models import MODEL_NAME_RE, Direction
+
+MAX_IMPORT_BYTES = 1024**3
+"""Largest virtual-model archive accepted (DeepRacer on AWS: 1 GB)."""
+
+_name_field = {
+    "max_length": 64,
+    "validators": [RegexValidator(MODEL_NAME_RE, "Use 1-64 letters, digits or hyphens.")],
+    "help_text": "1-64 letters, digits or hyphens; no spaces.",
+}
+
+
+class SignUpForm(UserCreationForm):
+    """Username and password, checked by Django's password validators."""
+
+    class Meta(UserCreationForm.Meta):
+        fields = ("username",)
+
+
+def _track_choices() -> list[tuple[str, str]]:
+    return [(r.info.id, r.info.name) for r in tracks.track_rows()]
+
+
+class ImportForm(forms.Form):
+    name = forms.CharField(**_name_field)
+    description = forms.CharField(max_length=255, required=False)
+    archive = forms.FileField(
+        label="Virtual model (.tar.gz)",
+        help_text="A virtual model downloaded from Racecraft: model_metadata.json, "
+        "hyperparameters.json, reward_function.py and a checkpoint.",
+        error_messages={"required": "Choose a virtual-model archive to upload."},
+    )
+
+    def clean_archive(self) -> Any:
+        upload = self.cleaned_data["archive"]
+        if upload.size > MAX_IMPORT_BYTES:
+            raise forms.ValidationError("The archive is larger than 1 GB.")
+        if upload.size == 0:
+            raise forms.ValidationError("The archive is empty.")
+        return upload
+
+
+class CloneForm(forms.Form):
+    """What a clone may change (DeepRacer): name, track, reward function, stop condition."""
+
+    name = forms.CharField(**_name_field)
+    description = forms.CharField(max_length=255, required=False)
+    track_id = forms.ChoiceField(label="Track")
+    direction = forms.ChoiceField(choices=Direction.choices)
+    reward_function = forms.CharField(
+        strip=False,
+        widget=forms.Textarea(attrs={"rows": 18, "spellcheck": "false"}),
+        error_messages={"required": "Write a reward function."},
+    )
+    max_minutes = forms.IntegerField(label="Maximum time (minutes)", min_value=1, max_value=1440)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.fields["track_id"].choices = _track_choices()
+
+
+class EvaluateForm(forms.Form):
+    track_id = forms.ChoiceField(label="Track")
+    direction = forms.ChoiceField(choices=Direction.choices, initial=Direction.NATIVE)
+    laps = forms.TypedChoiceField(
+        label="Number of trials", choices=[(n, n) for n in (3, 4, 5)], coerce=int, initial=3
+    )
+    off_track_penalty_s = forms.FloatField(
+        label="Off-track penalty (s)", min_value=0, max_value=60, initial=2.0
+    )
+    crash_penalty_s = forms.FloatField(
+        label="Crash penalty (s)", min_value=0, max_value=60, initial=5.0
+    )
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.fields["track_id"].choices = _track_choices()
+
+
+def add_service_error(form: forms.Form, message: str, field: str | None) -> None:
+    """Show a ServiceError on its field when the form has it, else above the form."""
+    aliases = {"sensors": "sensor", "archive": "archive", "checkpoint": None}
+    field = aliases.get(field, field) if field else None
+    form.add_error(field if field in form.fields else None, message[:1].upper() + message[1:])

@@ -1,0 +1,42 @@
+"""``manage.py import_track FILE.npy [--id ID] [--name NAME]``: add a DeepRacer track file to
+the catalogue (RACECRAFT_TRACKS_DIR), validated first; the gallery and model forms list it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from django.conf import settings
+from django.core.management.base import BaseCommand, CommandError, CommandParser
+
+from racing.track import TrackError
+from racing.tracks import import_track
+
+
+class Command(BaseCommand):
+    help = "Import a DeepRacer track file (.npy waypoints) into the track catalogue."
+
+    def add_arguments(self, parser: CommandParser) -> None:
+        parser.add_argument("file", help="a DeepRacer .npy track file")
+        parser.add_argument("--id", dest="track_id", help="track id (default: the file name)")
+        parser.add_argument("--name", default="", help="display name (default: the id)")
+        parser.add_argument("--overwrite", action="store_true", help="replace a track")
+
+    def handle(self, *args, file: str, track_id: str | None, name: str, overwrite: bool,
+               **options) -> None:  # fmt: skip
+        path = Path(file)
+        if not path.is_file():
+            raise CommandError(f"{file}: no such file")
+        try:
+            info = import_track(
+                path.read_bytes(),
+                track_id=track_id or path.stem,
+                dest_dir=settings.RACECRAFT_TRACKS_DIR,
+                name=name,
+                overwrite=overwrite,
+            )
+        except TrackError as exc:
+            raise CommandError(f"{path.name}: {exc}") from None
+        self.stdout.write(
+            f"imported {info.id!r} ({info.name}): {info.length_m:.2f} m long, "
+            f"{info.width_m:.3f} m wide, {info.direction}"
+        )

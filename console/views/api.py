@@ -1,0 +1,57 @@
+"""JSON endpoints used by the pages' JavaScript."""
+
+from __future__ import annotations
+
+import json
+
+from django.contrib.auth.decorators import login_required
+from django.http import HttpRequest, JsonResponse
+from django.views.decorators.http import require_POST
+
+from training import services
+from training.sandbox import MAX_SOURCE_CHARS
+
+MAX_BODY_BYTES = MAX_SOURCE_CHARS * 4 + 4096
+
+
+def _error(message: str, status: int = 400, field: str | None = None) -> JsonResponse:
+    error = {"type": "REQUEST_ERROR", "message": message, "line": None, "column": None,
+             "lineNumber": None, "field": field}  # fmt: skip
+    return JsonResponse({"ok": False, "errors": [error]}, status=status)
+
+
+@login_required
+@require_POST
+def reward_validate(request: HttpRequest) -> JsonResponse:
+    """POST ``{source, track, direction}`` (JSON or form data) → ``{ok, errors, rewards}``.
+
+    Errors are DeepRacer's: ``{type, message, line, column, lineNumber}``; a request we cannot
+    read answers 400 with one REQUEST_ERROR.
+    """
+    if len(request.body) > MAX_BODY_BYTES:
+        return _error("The reward function is too long.", status=413, field="source")
+    if request.content_type == "application/json":
+        try:
+            payload = json.loads(request.body or b"{}")
+        except ValueError:
+            return _error("The request body is not valid JSON.")
+        if not isinstance(payload, dict):
+            return _error("The request body must be a JSON object.")
+    else:
+        payload = request.POST.dict()
+    source, track = payload.get("source"), payload.get("track")
+    direction = payload.get("direction") or "native"
+    if not isinstance(source, str):
+        return _error("Send the reward function as 'source'.", field="source")
+    if not isinstance(track, str) or not track:
+        return _error("Choose a track to validate on.", field="track")
+    if not isinstance(direction, str):
+        return _error("'direction' must be native, ccw or cw.", field="direction")
+    try:
+        result = services.check_reward(source, track, direction)
+    except services.RewardRejected as exc:
+        return JsonResponse({"ok": False, "errors": exc.errors})
+    except services.ServiceError as exc:
+        field = {"track_id": "track", "reward_function": "source"}.get(exc.field or "", exc.field)
+        return _error(exc.message[:1].upper() + exc.message[1:], field=field)
+    return JsonResponse({"ok": True, "errors": [], "rewards": result["rewards"]})

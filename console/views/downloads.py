@@ -1,0 +1,55 @@
+"""Downloads of a user's own models and evaluations (404 for anyone else's)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from django.contrib import messages
+from django.contrib.auth.decorators import login_required
+from django.http import Http404, HttpRequest, HttpResponse
+from django.shortcuts import redirect
+from django.views.decorators.http import require_safe
+
+from console.views.owned import owned_evaluation, owned_model
+from training import downloads
+from training.models import RacingModel
+from training.services import ServiceError
+
+ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str]] = {
+    "car": (downloads.car_model_archive, "{name}-car.tar.gz"),
+    "virtual": (downloads.virtual_model_archive, "{name}-virtualmodel.tar.gz"),
+    "logs": (downloads.logs_archive, "{name}-logs.tar.gz"),
+}
+
+
+@login_required
+@require_safe
+def model_download(request: HttpRequest, model_id: int, kind: str) -> HttpResponse:
+    model = owned_model(request, model_id)
+    if kind not in ARCHIVES:
+        raise Http404("No such download")
+    build, filename = ARCHIVES[kind]
+    try:
+        data = build(model)
+    except ServiceError as exc:
+        messages.error(request, exc.message[:1].upper() + exc.message[1:])
+        if request.GET.get("back") == "list":
+            return redirect("models")
+        return redirect("model-detail", model_id=model.pk)
+    response = HttpResponse(data, content_type="application/gzip")
+    response["Content-Disposition"] = f'attachment; filename="{filename.format(name=model.name)}"'
+    return response
+
+
+@login_required
+@require_safe
+def evaluation_video(request: HttpRequest, evaluation_id: int) -> HttpResponse:
+    evaluation = owned_evaluation(request, evaluation_id)
+    try:
+        data = downloads.evaluation_video(evaluation)
+    except ServiceError:
+        raise Http404("This evaluation has no video") from None
+    response = HttpResponse(data, content_type="video/mp4")
+    response["Content-Disposition"] = f'inline; filename="evaluation-{evaluation.pk}.mp4"'
+    response["Accept-Ranges"] = "none"
+    return response

@@ -1,0 +1,128 @@
+"""A model's page: its configuration, training (start, stop, live chart and video) and
+evaluations (start, progress, results, video)."""
+
+from __future__ import annotations
+
+from django.contrib import messages
+from django.contrib.auth.decorators import login_required
+from django.http import HttpRequest, HttpResponse
+from django.shortcuts import redirect, render
+from django.views.decorators.http import require_http_methods, require_POST
+
+from console import tracks
+from console.forms import EvaluateForm, add_service_error
+from console.model_form import HP_LABELS, PPO_ONLY, SAC_ONLY
+from console.views.owned import owned_evaluation, owned_model, owned_training_job
+from training import services, web_services
+from training.models import JobStatus, RacingModel
+from training.policies import NETWORK_LABELS
+
+SENSOR_LABELS = {"FRONT_FACING_CAMERA": "Camera", "STEREO_CAMERAS": "Stereo camera"}
+ALGORITHM_LABELS = {"clipped_ppo": "PPO", "sac": "SAC"}
+
+
+def hyperparameter_rows(model: RacingModel) -> list[tuple[str, object]]:
+    skip = PPO_ONLY if model.algorithm == "sac" else SAC_ONLY
+    return [
+        (label, model.hyperparameters.get(key))
+        for key, label in HP_LABELS.items()
+        if key not in skip and key in model.hyperparameters
+    ]
+
+
+def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm | None = None,
+          status: int = 200) -> HttpResponse:  # fmt: skip
+    job = web_services.latest_training_job(model)
+    evaluations = web_services.evaluations_of(model)
+    track_names = {r.info.id: r for r in tracks.track_rows()}
+    if evaluate_form is None:
+        evaluate_form = EvaluateForm(
+            initial={"track_id": model.track_id, "direction": model.direction}
+        )
+    trained = job is not None and job.status == JobStatus.COMPLETED
+    context = {
+        "nav": "models",
+        "model": model,
+        "track": track_names.get(model.track_id),
+        "track_names": {k: r.info.name for k, r in track_names.items()},
+        "sensor_labels": [SENSOR_LABELS.get(s, s) for s in model.sensors],
+        "algorithm_label": ALGORITHM_LABELS.get(model.algorithm, model.algorithm),
+        "network_label": NETWORK_LABELS.get(model.neural_network, model.neural_network),
+        "hyperparameter_rows": hyperparameter_rows(model),
+        "job": job,
+        "chart_points": web_services.chart_points(job) if job else [],
+        "can_start": not model.is_busy and not trained and not (job and job.is_active),
+        "can_evaluate": model.has_checkpoint and not model.is_busy,
+        "evaluations": evaluations,
+        "evaluation": evaluations[0] if evaluations else None,
+        "evaluate_form": evaluate_form,
+    }
+    return render(request, "models/detail.html", context, status=status)
+
+
+@login_required
+@require_http_methods(["GET", "HEAD"])
+def model_detail(request: HttpRequest, model_id: int) -> HttpResponse:
+    return _page(request, owned_model(request, model_id))
+
+
+@login_required
+@require_POST
+def training_start(request: HttpRequest, model_id: int) -> HttpResponse:
+    model = owned_model(request, model_id)
+    try:
+        services.training_start(model=model, user=request.user)
+    except services.ServiceError as exc:
+        messages.error(request, exc.message[:1].upper() + exc.message[1:])
+    else:
+        messages.success(request, "Training queued: it starts as soon as a worker is free.")
+    return redirect("model-detail", model_id=model.pk)
+
+
+@login_required
+@require_POST
+def training_stop(request: HttpRequest, job_id: int) -> HttpResponse:
+    job = owned_training_job(request, job_id)
+    try:
+        services.job_stop(job=job, user=request.user)
+    except services.ServiceError as exc:
+        messages.error(request, exc.message[:1].upper() + exc.message[1:])
+    else:
+        messages.success(request, "Stopping: the model keeps its last checkpoint.")
+    return redirect("model-detail", model_id=job.model_id)
+
+
+@login_required
+@require_POST
+def evaluation_start(request: HttpRequest, model_id: int) -> HttpResponse:
+    model = owned_model(request, model_id)
+    form = EvaluateForm(request.POST)
+    if form.is_valid():
+        data = form.cleaned_data
+        try:
+            services.evaluation_start(
+                model=model,
+                user=request.user,
+                track_id=data["track_id"],
+                direction=data["direction"],
+                laps=data["laps"],
+                off_track_penalty_s=data["off_track_penalty_s"],
+                crash_penalty_s=data["crash_penalty_s"],
+            )
+        except services.ServiceError as exc:
+            add_service_error(form, exc.message, exc.field)
+        else:
+            messages.success(request, "Evaluation queued.")
+            return redirect(f"/models/{model.pk}/#evaluation")
+    return _page(request, model, evaluate_form=form, status=400)
+
+
+@login_required
+@require_POST
+def evaluation_stop(request: HttpRequest, evaluation_id: int) -> HttpResponse:
+    evaluation = owned_evaluation(request, evaluation_id)
+    try:
+        services.job_stop(job=evaluation, user=request.user)
+    except services.ServiceError as exc:
+        messages.error(request, exc.message[:1].upper() + exc.message[1:])
+    return redirect(f"/models/{evaluation.model_id}/#evaluation")

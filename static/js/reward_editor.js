@@ -1,0 +1,98 @@
+// The reward-function editor: CodeMirror (static/vendor/codemirror.bundle.js, global
+// RacecraftEditor) over the form's textarea, the examples, and the Validate button.
+"use strict";
+(function () {
+  const root = document.querySelector(".reward-editor");
+  if (!root) return;
+  const textarea = root.querySelector("textarea");
+  const mountPoint = root.querySelector("#reward-editor");
+  const result = root.querySelector("#reward-result");
+  const examples = JSON.parse(document.getElementById("reward-examples").textContent);
+  const initialErrors = JSON.parse(document.getElementById("reward-errors").textContent);
+  let view = null;
+
+  if (window.RacecraftEditor) {
+    view = window.RacecraftEditor.mount(mountPoint, textarea);
+    textarea.hidden = true;
+    root.classList.add("enhanced");
+  }
+  const getText = () => (view ? view.state.doc.toString() : textarea.value);
+  const setText = (text) => {
+    if (view) window.RacecraftEditor.setText(view, text);
+    textarea.value = text;
+  };
+
+  function showErrors(errors) {
+    result.replaceChildren();
+    if (view) window.RacecraftEditor.markErrors(view, errors);
+    if (!errors.length) return;
+    const list = document.createElement("ul");
+    list.className = "error-list";
+    for (const e of errors) {
+      const item = document.createElement("li");
+      const tag = document.createElement("span");
+      tag.className = "tag";
+      tag.textContent = e.type || "ERROR";
+      item.append(tag, (e.lineNumber ? ` Line ${e.lineNumber}: ` : " ") + e.message);
+      if (e.lineNumber) item.dataset.line = e.lineNumber;
+      list.append(item);
+    }
+    result.append(list);
+  }
+
+  function showOk(rewards) {
+    result.replaceChildren();
+    if (view) window.RacecraftEditor.clearErrors(view);
+    const ok = document.createElement("p");
+    ok.className = "ok-message";
+    const runs = Object.keys(rewards || {}).length;
+    ok.textContent = `Valid: the function ran on ${runs} test situations of the chosen track.`;
+    result.append(ok);
+  }
+
+  if (initialErrors.length) showErrors(initialErrors);
+
+  const useExample = root.querySelector("#use-example");
+  if (useExample) {
+    useExample.addEventListener("click", () => {
+      const id = root.querySelector("#example-select").value;
+      if (getText().trim() && !window.confirm("Replace your reward function with this example?")) return;
+      setText(examples[id]);
+      showErrors([]);
+    });
+  }
+
+  const validate = root.querySelector("#validate-reward");
+  if (validate) {
+    validate.addEventListener("click", async () => {
+      const form = root.closest("form");
+      const track = form.querySelector("[name=track_id]:checked, select[name=track_id]");
+      const direction = form.querySelector("[name=direction]");
+      validate.disabled = true;
+      validate.textContent = "Validating…";
+      result.replaceChildren();
+      try {
+        const response = await fetch(root.dataset.validateUrl, {
+          method: "POST",
+          headers: {
+            "Content-Type": "application/json",
+            "X-CSRFToken": form.querySelector("[name=csrfmiddlewaretoken]").value,
+          },
+          body: JSON.stringify({
+            source: getText(),
+            track: track ? track.value : "",
+            direction: direction ? direction.value : "native",
+          }),
+        });
+        const data = await response.json();
+        if (data.ok) showOk(data.rewards);
+        else showErrors(data.errors);
+      } catch (err) {
+        showErrors([{ type: "NETWORK_ERROR", message: "Could not reach the server: " + err }]);
+      } finally {
+        validate.disabled = false;
+        validate.textContent = "Validate";
+      }
+    });
+  }
+})();

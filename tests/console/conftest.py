@@ -1,0 +1,63 @@
+"""People and models for the console's tests: Alice owns things, Charlie must never see them."""
+
+from __future__ import annotations
+
+import pytest
+from django.contrib.auth import get_user_model
+from django.test import Client
+
+from training import services
+from training.models import RacingModel
+
+PASSWORD = "correct-horse-battery-9"
+REWARD = "def reward_function(params):\n    return 1.0\n"
+ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-30, 0, 30)]
+
+
+@pytest.fixture
+def store_dir(tmp_path, settings):
+    settings.STORE_DIR = tmp_path / "store"
+    return settings.STORE_DIR
+
+
+@pytest.fixture
+def alice(db):
+    return get_user_model().objects.create_user("alice", password=PASSWORD)
+
+
+@pytest.fixture
+def charlie(db):
+    return get_user_model().objects.create_user("charlie", password=PASSWORD)
+
+
+@pytest.fixture
+def alice_client(alice) -> Client:
+    client = Client()
+    client.force_login(alice)
+    return client
+
+
+@pytest.fixture
+def charlie_client(charlie) -> Client:
+    client = Client()
+    client.force_login(charlie)
+    return client
+
+
+def make_model(owner, name: str = "alice-oval", **overrides) -> RacingModel:
+    values = {
+        "owner": owner,
+        "name": name,
+        "track_id": "racecraft_oval",
+        "action_space": ACTIONS,
+        "reward_function": REWARD,
+        "validate_reward": False,
+        "seed": 1,
+        **overrides,
+    }
+    return services.model_create(**values)
+
+
+@pytest.fixture
+def alice_model(alice, store_dir) -> RacingModel:
+    return make_model(alice)

@@ -1,0 +1,251 @@
+"""The models pages: who may see what, the create form (errors keep every value), the action
+generator, delete with confirmation, import errors and downloads."""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+
+import pytest
+from django.test import Client
+
+from tests.console.conftest import PASSWORD, REWARD, make_model
+from training.models import RacingModel
+
+pytestmark = pytest.mark.django_db
+
+
+def create_data(**overrides) -> dict:
+    data = {
+        "name": "my-first-model",
+        "description": "Round and round",
+        "track_id": "racecraft_oval",
+        "direction": "native",
+        "race_type": "TIME_TRIAL",
+        "sensor": "FRONT_FACING_CAMERA",
+        "action_space_type": "discrete",
+        "action_steering": ["-30", "0", "30"],
+        "action_speed": ["1", "1.5", "1"],
+        "gen_max_steering": "30",
+        "gen_steering_levels": "5",
+        "gen_max_speed": "1",
+        "gen_speed_levels": "2",
+        "steering_low": "-30",
+        "steering_high": "30",
+        "speed_low": "1",
+        "speed_high": "2",
+        "algorithm": "clipped_ppo",
+        "neural_network": "RACECRAFT_LEAN_CNN",
+        "batch_size": "32",
+        "num_epochs": "3",
+        "lr": "0.0003",
+        "beta_entropy": "0.01",
+        "sac_alpha": "0.2",
+        "discount_factor": "0.999",
+        "loss_type": "huber",
+        "num_episodes_between_training": "4",
+        "reward_function": REWARD,
+        "max_minutes": "30",
+    }
+    data.update(overrides)
+    return data
+
+
+def test_public_pages_and_login_required(client: Client, alice_model) -> None:
+    for url in ("/", "/tracks/", "/accounts/login/", "/accounts/signup/"):
+        assert client.get(url).status_code == 200, url
+    for url in ("/models/", "/models/new/", f"/models/{alice_model.pk}/", "/models/import/"):
+        response = client.get(url)
+        assert response.status_code == 302 and response["Location"].startswith("/accounts/login/")
+
+
+def test_sign_up_log_out_and_log_in(client: Client) -> None:
+    weak = client.post(
+        "/accounts/signup/", {"username": "dana", "password1": "123", "password2": "123"}
+    )
+    assert weak.status_code == 200 and "too short" in weak.content.decode()
+    assert 'value="dana"' in weak.content.decode()
+    response = client.post(
+        "/accounts/signup/", {"username": "dana", "password1": PASSWORD, "password2": PASSWORD}
+    )
+    assert response.status_code == 302 and response["Location"] == "/models/"
+    assert client.get("/models/").status_code == 200
+    assert client.get("/accounts/logout/").status_code == 405  # log out is a POST
+    client.post("/accounts/logout/")
+    assert client.get("/models/").status_code == 302
+    response = client.post("/accounts/login/", {"username": "dana", "password": PASSWORD})
+    assert response.status_code == 302
+
+
+def test_list_shows_only_my_models(alice, charlie, alice_client, store_dir) -> None:
+    make_model(alice, "alice-one")
+    make_model(charlie, "charlie-secret")
+    page = alice_client.get("/models/").content.decode()
+    assert "alice-one" in page and "charlie-secret" not in page
+    assert "Ready" in page and "Racecraft Oval" in page and "PPO" in page
+
+
+def test_create_with_errors_keeps_every_value(alice_client, store_dir) -> None:
+    data = create_data(
+        name="bad name",
+        description="Keep this text",
+        action_steering=["-30", "45", "30"],
+        num_epochs="99",
+        max_minutes="2000",
+        reward_function="def reward_function(params):\n    return 0.5  # mine\n",
+    )
+    response = alice_client.post("/models/new/", data)
+    assert response.status_code == 400
+    page = response.content.decode()
+    assert 'value="bad name"' in page and "Keep this text" in page
+    assert "Use 1-64 letters, digits or hyphens." in page
+    assert 'value="45"' in page and "between -30 and 30 degrees" in page
+    assert "Ensure this value is less than or equal to 10." in page
+    assert "Ensure this value is less than or equal to 1440." in page
+    assert "return 0.5  # mine" in html.unescape(page)
+    assert not RacingModel.objects.exists()
+
+
+def test_sac_needs_a_continuous_action_space(alice_client, store_dir) -> None:
+    response = alice_client.post("/models/new/", create_data(algorithm="sac"))
+    assert response.status_code == 400
+    assert "SAC works only with a continuous action space" in response.content.decode()
+
+
+def test_too_few_actions_and_other_race_types_are_refused(alice_client, store_dir) -> None:
+    data = create_data(action_steering=["0"], action_speed=["1"], race_type="HEAD_TO_BOT")
+    page = alice_client.post("/models/new/", data).content.decode()
+    assert "2 to 30 actions; this one has 1" in page
+    assert "coming soon" in page
+
+
+def test_reward_errors_are_shown_with_their_lines(alice_client, store_dir) -> None:
+    broken = "def reward_function(params):\n    x = params['speed'\n    return x\n"
+    response = alice_client.post("/models/new/", create_data(reward_function=broken))
+    assert response.status_code == 400
+    page = response.content.decode()
+    errors = json.loads(
+        re.search(r'<script id="reward-errors" type="application/json">(.*?)</script>', page)[1]
+    )
+    assert errors and errors[0]["type"] == "SYNTAX_ERROR" and errors[0]["lineNumber"] == 2
+    assert "params[&#x27;speed&#x27;" in page  # the source is kept
+
+
+def test_create_discrete_and_continuous(alice, alice_client, store_dir) -> None:
+    response = alice_client.post("/models/new/", create_data())
+    model = RacingModel.objects.get(owner=alice, name="my-first-model")
+    assert response.status_code == 302 and response["Location"] == f"/models/{model.pk}/"
+    assert [a["steering_angle"] for a in model.action_space] == [-30, 0, 30]
+    assert model.hyperparameters["batch_size"] == 32 and model.max_minutes == 30
+    assert model.sensors == ["FRONT_FACING_CAMERA"] and model.description == "Round and round"
+
+    data = create_data(name="smooth", action_space_type="continuous", algorithm="sac",
+                       sensor="STEREO_CAMERAS", speed_low="0.5", speed_high="3")  # fmt: skip
+    assert alice_client.post("/models/new/", data).status_code == 302
+    smooth = RacingModel.objects.get(owner=alice, name="smooth")
+    assert smooth.algorithm == "sac" and smooth.action_space_type == "continuous"
+    assert smooth.action_space["speed"] == {"low": 0.5, "high": 3.0}
+    assert smooth.sensors == ["STEREO_CAMERAS"]
+    page = alice_client.get(f"/models/{smooth.pk}/").content.decode()
+    assert "SAC" in page and "Stereo camera" in page and "Start training" in page
+
+
+def test_duplicate_name_is_shown_on_the_name_field(alice, alice_client, store_dir) -> None:
+    make_model(alice, "taken")
+    page = alice_client.post("/models/new/", create_data(name="taken")).content.decode()
+    assert "You already have a model named" in page
+
+
+def test_the_generator_fills_the_table_and_keeps_the_rest(alice_client, store_dir) -> None:
+    data = create_data(name="keep-me", gen_max_steering="20", gen_steering_levels="3",
+                       gen_max_speed="2", gen_speed_levels="2", generate="1")  # fmt: skip
+    response = alice_client.post("/models/new/", data)
+    page = response.content.decode()
+    assert response.status_code == 200 and 'value="keep-me"' in page
+    steering = re.findall(r'name="action_steering" value="([^"]+)"', page)
+    speeds = re.findall(r'name="action_speed" value="([^"]+)"', page)
+    assert steering == ["-20", "-20", "0", "0", "20", "20"]
+    assert speeds == ["1", "2", "1", "2", "1", "2"]
+    too_many = alice_client.post("/models/new/", {**data, "gen_steering_levels": "15",
+                                                  "gen_speed_levels": "3"})  # fmt: skip
+    assert "45 actions" in too_many.content.decode()
+    assert not RacingModel.objects.exists()
+
+
+def test_others_get_404_for_pages_actions_and_downloads(alice_model, charlie_client) -> None:
+    pk = alice_model.pk
+    for url in (f"/models/{pk}/", f"/models/{pk}/clone/", f"/models/{pk}/delete/",
+                f"/models/{pk}/download/car/", f"/models/{pk}/download/virtual/",
+                f"/models/{pk}/download/logs/"):  # fmt: skip
+        assert charlie_client.get(url).status_code == 404, url
+    for url in (f"/models/{pk}/delete/", f"/models/{pk}/train/", f"/models/{pk}/evaluate/"):
+        assert charlie_client.post(url).status_code == 404, url
+    assert RacingModel.objects.filter(pk=pk).exists()
+
+
+def test_delete_asks_first(alice_model, alice_client) -> None:
+    page = alice_client.get(f"/models/{alice_model.pk}/delete/").content.decode()
+    assert "Delete alice-oval?" in page and "cannot be undone" in page
+    response = alice_client.post(f"/models/{alice_model.pk}/delete/")
+    assert response.status_code == 302 and response["Location"] == "/models/"
+    assert not RacingModel.objects.filter(pk=alice_model.pk).exists()
+
+
+def test_downloads_need_a_checkpoint(alice_model, alice_client) -> None:
+    response = alice_client.get(f"/models/{alice_model.pk}/download/car/", follow=True)
+    assert "no trained checkpoint yet" in response.content.decode()
+    assert alice_client.get(f"/models/{alice_model.pk}/download/nope/").status_code == 404
+
+
+def test_import_errors_are_clear(alice_client, store_dir) -> None:
+    missing = alice_client.post("/models/import/", {"name": "imported"})
+    assert missing.status_code == 400
+    assert "Choose a virtual-model archive to upload." in missing.content.decode()
+    from django.core.files.uploadedfile import SimpleUploadedFile
+
+    junk = SimpleUploadedFile("model.tar.gz", b"not an archive at all", "application/gzip")
+    response = alice_client.post("/models/import/", {"name": "imported", "archive": junk})
+    assert response.status_code == 400
+    page = response.content.decode()
+    assert 'value="imported"' in page and "field-error" in page
+    assert not RacingModel.objects.exists()
+
+
+def test_start_training_and_stop_it(alice_model, alice_client, monkeypatch,
+                                    django_capture_on_commit_callbacks) -> None:  # fmt: skip
+    from training import tasks
+
+    queued = []
+    monkeypatch.setattr(tasks.train_model, "delay",
+                        lambda pk: queued.append(pk) or type("R", (), {"id": "t"})())  # fmt: skip
+    with django_capture_on_commit_callbacks(execute=True):
+        response = alice_client.post(f"/models/{alice_model.pk}/train/")
+    assert response.status_code == 302
+    job = alice_model.training_jobs.get()
+    assert queued == [job.pk]
+    page = alice_client.get(f"/models/{alice_model.pk}/").content.decode()
+    assert "Stop training" in page and "Queued" in page
+    again = alice_client.post(f"/models/{alice_model.pk}/train/", follow=True)
+    assert "busy" in again.content.decode()
+    alice_client.post(f"/jobs/training/{job.pk}/stop/")
+    job.refresh_from_db()
+    assert job.status == "CANCELED"
+
+
+def test_evaluate_form_errors(alice_model, alice_client) -> None:
+    response = alice_client.post(
+        f"/models/{alice_model.pk}/evaluate/",
+        {"track_id": "racecraft_oval", "direction": "native", "laps": "7",
+         "off_track_penalty_s": "-1", "crash_penalty_s": "5"},
+    )  # fmt: skip
+    page = response.content.decode()
+    assert response.status_code == 400
+    assert "Select a valid choice. 7 is not one of the available choices." in page
+    assert "greater than or equal to 0" in page
+    ok = alice_client.post(
+        f"/models/{alice_model.pk}/evaluate/",
+        {"track_id": "racecraft_oval", "direction": "native", "laps": "3",
+         "off_track_penalty_s": "2", "crash_penalty_s": "5"},
+    )  # fmt: skip
+    assert ok.status_code == 400 and "Train this model before evaluating it" in ok.content.decode()

@@ -1,0 +1,94 @@
+"""Rollouts on another machine: a real Celery worker on the ``simulation`` queue serves a
+sandboxed rollout through real Redis, and gives exactly what a local sandboxed worker gives."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from training.rollout import EnvSpec
+from training.vecenv import RolloutError, SandboxedVecEnv
+
+ROOT = Path(__file__).resolve().parents[2]
+REWARD = """
+state = {"last": None}
+
+def reward_function(params):
+    last, state["last"] = state["last"], params["progress"]
+    gained = 0.0 if last is None or params["steps"] <= 1 else params["progress"] - last
+    return max(gained, 0.0) + 1e-3
+"""
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture
+def simulation_worker(redis_env, tmp_path):
+    env = {**os.environ, **redis_env, "DJANGO_SETTINGS_MODULE": "console.settings"}
+    name = f"sim-{uuid.uuid4().hex[:8]}@%h"
+    log = open(tmp_path / "sim.log", "w")  # noqa: SIM115 - closed below
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "celery", "-A", "console", "worker", "-Q", "simulation",
+         "-c", "2", "-n", name, "--without-gossip", "--without-mingle", "-l", "INFO"],
+        cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    try:
+        from console.celery import app
+
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not app.control.ping(timeout=1.0):
+            assert proc.poll() is None, (tmp_path / "sim.log").read_text()
+        yield proc
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
+
+
+def run(venv, steps: int = 40):
+    venv.seed(5)
+    frames = [venv.reset()]
+    rewards, statuses = [], []
+    rng = np.random.default_rng(0)
+    for _ in range(steps):
+        obs, reward, _, infos = venv.step(rng.integers(0, 10, venv.num_envs))
+        frames.append(obs)
+        rewards.append(reward)
+        statuses.append([i["status"] for i in infos])
+    venv.close()
+    return np.stack(frames), np.stack(rewards), statuses
+
+
+def test_remote_rollout_matches_a_local_one(simulation_worker, redis_url, settings):
+    from training.remote import RemoteVecEnv
+
+    spec = EnvSpec(track="racecraft_summit")
+    remote = RemoteVecEnv(spec, 4, REWARD, num_slots=2, redis_url=redis_url,
+                          prefix=settings.REDIS_PREFIX)  # fmt: skip
+    assert remote.sizes == [2, 2]
+    local = SandboxedVecEnv(spec, 4, REWARD, num_workers=2)
+    rf, rr, rs = run(remote)
+    lf, lr, ls = run(local)
+    assert np.array_equal(rf, lf)
+    assert np.array_equal(rr, lr)
+    assert rs == ls
+    assert rr.max() > 0.01  # the stateful reward paid for progress, per car
+
+
+def test_no_simulation_worker_is_a_clear_error(redis_url, settings, monkeypatch):
+    from training import remote
+
+    monkeypatch.setattr(remote, "START_TIMEOUT_S", 2.0)
+    monkeypatch.setattr("training.tasks.simulate_rollout.delay", lambda **kwargs: None)
+    with pytest.raises(RolloutError, match="no simulation worker took the rollout"):
+        remote.RemoteVecEnv(EnvSpec(track="racecraft_oval"), 2, REWARD, num_slots=1,
+                            redis_url=redis_url, prefix=settings.REDIS_PREFIX)  # fmt: skip
