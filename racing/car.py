@@ -12,7 +12,10 @@ Frame: the car's origin is the middle of the rear axle on the ground; x forward,
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sys
 from dataclasses import dataclass
 
 import pybullet as pb
@@ -111,6 +114,25 @@ def wheel_speeds(steering_rad: float, speed: float) -> list[float]:
     return [w * outer_front, w * inner_front, w * outer_rear, w * inner_rear]
 
 
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Silence the process's C-level stdout for a moment (file descriptor 1)."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError):
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+
+
 class _RawClient:
     """The few PyBullet calls made every step, bound to one physics client id."""
 
@@ -133,7 +155,8 @@ class CarSim:
         if substeps < 1:
             raise ValueError("substeps must be at least 1")
         self.dt = 1.0 / CONTROL_HZ
-        self.client = bullet_client.BulletClient(connection_mode=pb.DIRECT)
+        with _quiet_stdout():  # PyBullet's C code prints "argv[0]=" on every connect
+            self.client = bullet_client.BulletClient(connection_mode=pb.DIRECT)
         c = self.client
         c.setGravity(0, 0, -GRAVITY)
         c.setPhysicsEngineParameter(

@@ -187,7 +187,10 @@ def _episode_row(job: TrainingJob, iteration: int, e: dict, number: int) -> Epis
 
 
 def _set_status(job, status: str, **extra) -> None:
-    type(job).objects.filter(pk=job.pk).update(status=status, **extra)
+    """Move the job on, unless a stop request already moved it to STOPPING."""
+    rows = type(job).objects.exclude(status=JobStatus.STOPPING).filter(pk=job.pk)
+    if not rows.update(status=status, **extra):
+        return
     job.status = status
     live.send(live.job_group(_kind(job), job.pk), {"type": "job.status", "status": status})
 

@@ -422,8 +422,9 @@ def _enqueue_after_commit(job, send: Callable[[int], str]) -> None:
     transaction.on_commit(go)
 
 
-def training_start(*, model: RacingModel, user) -> TrainingJob:
-    """Queue a training job for a model that has not been trained yet."""
+def training_start(*, model: RacingModel, user, enqueue: bool = True) -> TrainingJob:
+    """Queue a training job for a model that has not been trained yet. ``enqueue=False``
+    leaves the job for the caller to run in its own process (the command line)."""
     _owned(model, user)
     with transaction.atomic():
         model = RacingModel.objects.select_for_update().get(pk=model.pk)
@@ -436,9 +437,10 @@ def training_start(*, model: RacingModel, user) -> TrainingJob:
         model.status = RacingModel.Status.QUEUED
         model.error = ""
         model.save(update_fields=["status", "error", "updated_at"])
-        from training.tasks import train_model
+        if enqueue:
+            from training.tasks import train_model
 
-        _enqueue_after_commit(job, lambda pk: train_model.delay(pk).id)
+            _enqueue_after_commit(job, lambda pk: train_model.delay(pk).id)
     return job
 
 
@@ -453,8 +455,10 @@ def evaluation_start(
     off_track_penalty_s: float = 2.0,
     crash_penalty_s: float = 5.0,
     purpose: str = "user",
+    enqueue: bool = True,
 ) -> EvaluationJob:
-    """Queue an evaluation of a trained model (3-5 laps, DeepRacer's penalties)."""
+    """Queue an evaluation of a trained model (3-5 laps, DeepRacer's penalties);
+    ``enqueue=False`` leaves it for the caller to run in its own process."""
     _owned(model, user)
     track_id = track_id or model.track_id
     direction = direction or model.direction
@@ -484,9 +488,10 @@ def evaluation_start(
         )  # fmt: skip
         model.status = RacingModel.Status.EVALUATING
         model.save(update_fields=["status", "updated_at"])
-        from training.tasks import evaluate_model
+        if enqueue:
+            from training.tasks import evaluate_model
 
-        _enqueue_after_commit(job, lambda pk: evaluate_model.delay(pk).id)
+            _enqueue_after_commit(job, lambda pk: evaluate_model.delay(pk).id)
     return job
 
 

@@ -1,0 +1,120 @@
+"""`manage.py racecraft_create_model`: a model from DeepRacer's files."""
+
+from __future__ import annotations
+
+import json
+from argparse import ArgumentParser
+from pathlib import Path
+from typing import Any
+
+from django.core.management.base import BaseCommand, CommandError
+
+from training import services
+from training.cli_services import user_by_username
+from training.management.cli import add_owner_argument, service_errors
+from training.metadata import MetadataError, parse_metadata
+from training.models import Direction
+
+
+def read_bytes(path: str, what: str) -> bytes:
+    try:
+        return Path(path).read_bytes()
+    except OSError as exc:
+        raise CommandError(f"cannot read the {what} {path}: {exc.strerror or exc}") from None
+
+
+def read_text(path: str, what: str) -> str:
+    try:
+        return read_bytes(path, what).decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise CommandError(f"the {what} {path} is not UTF-8 text ({exc.reason})") from None
+
+
+def read_hyperparameters(path: str) -> dict:
+    try:
+        data = json.loads(read_text(path, "hyperparameters file"))
+    except json.JSONDecodeError as exc:
+        raise CommandError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise CommandError(f"{path} must hold a JSON object of hyperparameters")
+    return data
+
+
+class Command(BaseCommand):
+    help = (
+        "Create a model from DeepRacer's files: reward_function.py, model_metadata.json (action "
+        "space, sensor, algorithm, network) and optionally hyperparameters.json. The reward "
+        "function is checked in the sandbox first. Prints the new model's id (only the id "
+        "with -v 0)."
+    )
+
+    def add_arguments(self, parser: ArgumentParser) -> None:
+        add_owner_argument(parser, required=True)
+        parser.add_argument("--name", required=True, help="1-64 letters, digits or hyphens")
+        parser.add_argument("--reward", required=True, metavar="PATH", help="reward_function.py")
+        parser.add_argument("--metadata", required=True, metavar="PATH", help="model_metadata.json")
+        parser.add_argument(
+            "--hyperparameters",
+            metavar="PATH",
+            help="hyperparameters.json (default: the console's defaults for the algorithm)",
+        )
+        parser.add_argument(
+            "--track", default="racecraft_summit", help="track id (default: racecraft_summit)"
+        )
+        parser.add_argument(
+            "--direction",
+            choices=Direction.values,
+            default=Direction.NATIVE,
+            help="driving direction on the track (default: native)",
+        )
+        parser.add_argument(
+            "--minutes",
+            type=int,
+            default=10,
+            help="stop condition: minutes of training (1-1440, default 10)",
+        )
+        parser.add_argument("--description", default="", help="at most 255 characters")
+        parser.add_argument(
+            "--seed", type=int, default=None, help="random seed (default: a random one)"
+        )
+
+    def handle(self, *args: Any, **options: Any) -> None:
+        reward = read_text(options["reward"], "reward function")
+        try:
+            metadata = parse_metadata(read_bytes(options["metadata"], "metadata file"))
+        except MetadataError as exc:
+            raise CommandError(f"{options['metadata']}: {exc}") from None
+        hyperparameters = (
+            read_hyperparameters(options["hyperparameters"]) if options["hyperparameters"] else None
+        )
+        with service_errors():
+            owner = user_by_username(username=options["owner"])
+            model = services.model_create(
+                owner=owner,
+                name=options["name"],
+                description=options["description"],
+                track_id=options["track"],
+                direction=options["direction"],
+                sensors=list(metadata.sensor),
+                action_space=metadata.actions.to_metadata(),
+                algorithm=metadata.training_algorithm,
+                neural_network=metadata.neural_network,
+                hyperparameters=hyperparameters,
+                reward_function=reward,
+                max_minutes=options["minutes"],
+                seed=options["seed"],
+            )
+        if options["verbosity"] == 0:
+            self.stdout.write(str(model.pk))
+            return
+        actions = (
+            f"{len(model.action_space)} actions"
+            if model.action_space_type == "discrete"
+            else "continuous actions"
+        )
+        self.stdout.write(
+            f"Created model {model.pk}: {model.name} ({model.algorithm}, {actions}, "
+            f"{', '.join(model.sensors)}, {model.neural_network}) on {model.track_id}, "
+            f"{model.max_minutes} min of training"
+        )
+        self.stdout.write(f"Train it with: manage.py racecraft_train {model.pk}")

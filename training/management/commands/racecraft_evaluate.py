@@ -1,0 +1,103 @@
+"""`manage.py racecraft_evaluate`: evaluate a trained model and print DeepRacer's results."""
+
+from __future__ import annotations
+
+from argparse import ArgumentParser
+from typing import Any
+
+from django.core.management.base import BaseCommand
+
+from training import jobs, services
+from training.cli_services import evaluation_create
+from training.management.cli import (
+    add_owner_argument,
+    evaluation_progress,
+    follow_queued,
+    owner_and_model,
+    require_completed,
+    results_table,
+    run_inline,
+    service_errors,
+)
+from training.models import Direction
+
+
+class Command(BaseCommand):
+    help = (
+        "Evaluate a trained model (its best checkpoint) for 3-5 laps from the start line, "
+        "with DeepRacer's penalties, and print the results table. By default it runs in this "
+        "process (Ctrl-C stops it and keeps the laps driven so far); with --queue a Celery "
+        "worker runs it and this command follows it."
+    )
+
+    def add_arguments(self, parser: ArgumentParser) -> None:
+        parser.add_argument("model_id", type=int, metavar="MODEL_ID")
+        add_owner_argument(parser, required=False)
+        parser.add_argument("--laps", type=int, default=3, help="laps to drive, 3-5 (default 3)")
+        parser.add_argument("--track", help="track id (default: the model's training track)")
+        parser.add_argument(
+            "--direction",
+            choices=Direction.values,
+            help="driving direction (default: the model's)",
+        )
+        parser.add_argument(
+            "--off-track-penalty",
+            type=float,
+            default=2.0,
+            metavar="SECONDS",
+            help="seconds added per off-track, 0-60 (default 2)",
+        )
+        parser.add_argument(
+            "--crash-penalty",
+            type=float,
+            default=5.0,
+            metavar="SECONDS",
+            help="seconds added per crash, 0-60 (default 5)",
+        )
+        parser.add_argument(
+            "--queue",
+            action="store_true",
+            help="queue the evaluation for a Celery worker and follow it, instead of running "
+            "it here",
+        )
+
+    def handle(self, *args: Any, model_id: int, owner: str | None, queue: bool, **options: Any):
+        user, model = owner_and_model(model_id, owner)
+        settings = {
+            "track_id": options["track"],
+            "direction": options["direction"],
+            "laps": options["laps"],
+            "off_track_penalty_s": options["off_track_penalty"],
+            "crash_penalty_s": options["crash_penalty"],
+        }
+        with service_errors():
+            if queue:
+                job = services.evaluation_start(model=model, user=user, **settings)
+            else:
+                job = evaluation_create(model=model, user=user, **settings)
+        where = "queued for a worker" if queue else "running here"
+        self.stdout.write(
+            f"Evaluation {job.pk} of model {model.pk} ({model.name}): {where}, {job.laps} laps "
+            f"on {job.track_id} ({job.direction})"
+        )
+        if queue:
+            done = follow_queued(job=job, progress=evaluation_progress, out=self.stdout)
+            if done is None:
+                return
+        else:
+            done = run_inline(
+                job=job,
+                user=user,
+                run=jobs.run_evaluation_job,
+                progress=evaluation_progress,
+                out=self.stdout,
+            )
+        if done.lap_rows:
+            self.stdout.write(results_table(done))
+        completed = done.results.get("completed_laps", 0) if isinstance(done.results, dict) else 0
+        stopped = " (stopped early)" if done.results.get("stopped") else ""
+        self.stdout.write(
+            f"Evaluation {done.pk}: {done.get_status_display()}{stopped}, "
+            f"{completed}/{done.laps} laps completed"
+        )
+        require_completed(done, "evaluation")

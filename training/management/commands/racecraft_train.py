@@ -1,0 +1,89 @@
+"""`manage.py racecraft_train`: train a model here (no worker needed) or through the queue."""
+
+from __future__ import annotations
+
+from argparse import ArgumentParser
+from typing import Any
+
+from django.core.management.base import BaseCommand
+
+from training import jobs, services
+from training.cli_services import training_create
+from training.management.cli import (
+    add_owner_argument,
+    follow_queued,
+    mmss,
+    owner_and_model,
+    require_completed,
+    run_inline,
+    service_errors,
+    training_progress,
+)
+from training.models import TrainingJob
+
+
+class Command(BaseCommand):
+    help = (
+        "Train a model until its stop condition (minutes), showing the elapsed time and the "
+        "latest iteration. By default the training runs in this process; Ctrl-C asks it to "
+        "stop and waits for a clean end that keeps the last checkpoint. With --queue a Celery "
+        "worker runs it and this command follows it (Ctrl-C stops following, not the job)."
+    )
+
+    def add_arguments(self, parser: ArgumentParser) -> None:
+        parser.add_argument("model_id", type=int, metavar="MODEL_ID")
+        add_owner_argument(parser, required=False)
+        parser.add_argument(
+            "--queue",
+            action="store_true",
+            help="queue the job for a Celery worker and follow it, instead of running it here",
+        )
+
+    def handle(self, *args: Any, model_id: int, owner: str | None, queue: bool, **options: Any):
+        user, model = owner_and_model(model_id, owner)
+        with service_errors():
+            if queue:
+                job = services.training_start(model=model, user=user)
+            else:
+                job = training_create(model=model, user=user)
+        where = "queued for a worker" if queue else "running here"
+        self.stdout.write(
+            f"Training job {job.pk} of model {model.pk} ({model.name}): {where}, "
+            f"up to {job.max_minutes} min on {model.track_id}"
+        )
+        if queue:
+            done = follow_queued(job=job, progress=training_progress, out=self.stdout)
+            if done is None:
+                return
+        else:
+            done = run_inline(
+                job=job,
+                user=user,
+                run=jobs.run_training_job,
+                progress=training_progress,
+                out=self.stdout,
+            )
+        self._report(done)
+        require_completed(done, "training job")
+
+    def _report(self, job: TrainingJob) -> None:
+        why = {"user": "stopped by you", "time_limit": "stop condition reached"}.get(
+            job.stopped_by, job.stopped_by or ""
+        )
+        self.stdout.write(
+            f"Training job {job.pk}: {job.get_status_display()}"
+            + (f" ({why})" if why else "")
+            + f" after {job.iterations} iterations, {job.episodes} episodes, "
+            f"{mmss(job.elapsed_seconds)}"
+        )
+        if job.error:
+            self.stderr.write(job.error)
+        if job.best_iteration is not None:
+            self.stdout.write(
+                f"Best checkpoint: iteration {job.best_iteration}, "
+                f"{job.best_eval_progress:.1f}% of a lap in evaluation"
+            )
+            self.stdout.write(
+                f"Next: manage.py racecraft_evaluate {job.model_id}, or "
+                f"manage.py racecraft_export {job.model_id} --car {job.model.name}-car.tar.gz"
+            )
