@@ -1,18 +1,13 @@
-"""Services for the command line: jobs created without queueing, so that a ``manage.py``
-command can run them in its own process (no Celery worker), and lookups by name and id.
-
-The checks mirror :func:`training.services.training_start` and
-:func:`training.services.evaluation_start` (owner, busy model, already trained, job quota);
-only the ``on_commit`` enqueue is missing. The caller runs the job with
-:func:`training.jobs.run_training_job` / :func:`training.jobs.run_evaluation_job`.
-"""
+"""Lookups for the command line: users by name and models by id, with messages that say what
+is missing. (Jobs a command runs in its own process come from ``training.services`` with
+``enqueue=False``.)"""
 
 from __future__ import annotations
 
 from django.contrib.auth import get_user_model
 
-from training.models import EvaluationJob, RacingModel, TrainingJob
-from training.services import ServiceError, evaluation_start, training_start
+from training.models import RacingModel
+from training.services import ServiceError
 
 
 def user_by_username(*, username: str):
@@ -34,19 +29,3 @@ def model_for_cli(*, model_id: int, user=None) -> RacingModel:
         whose = f" owned by {user.get_username()!r}" if user is not None else ""
         raise ServiceError(f"there is no model {model_id}{whose}")
     return model
-
-
-def training_create(*, model: RacingModel, user) -> TrainingJob:
-    """A training job row in QUEUED, not sent to Celery: the caller runs it in-process.
-
-    Same rules as :func:`training.services.training_start`. Raises :class:`ServiceError`.
-    """
-    return training_start(model=model, user=user, enqueue=False)
-
-
-def evaluation_create(*, model: RacingModel, user, **settings) -> EvaluationJob:
-    """An evaluation row in QUEUED, not sent to Celery: the caller runs it in-process.
-
-    Same rules and keyword arguments as :func:`training.services.evaluation_start`.
-    """
-    return evaluation_start(model=model, user=user, enqueue=False, **settings)

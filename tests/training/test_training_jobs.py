@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from django.contrib.auth import get_user_model
-from django.db import connection
 
+from tests.support import database_url
 from training import downloads, services
 from training.models import EvaluationJob, IterationMetric, JobStatus, RacingModel, TrainingJob
 from training.store import get_store, keys_for
@@ -32,15 +32,6 @@ def reward_function(params):
 """
 
 pytestmark = [pytest.mark.django_db(transaction=True), pytest.mark.slow]
-
-
-def database_url() -> str:
-    db = connection.settings_dict
-    if db["ENGINE"].endswith("sqlite3"):
-        return f"sqlite:///{db['NAME']}"
-    user = db.get("USER") or ""
-    auth = f"{user}@" if user else ""
-    return f"postgres://{auth}{db.get('HOST') or '127.0.0.1'}:{db.get('PORT') or 5432}/{db['NAME']}"
 
 
 @pytest.fixture

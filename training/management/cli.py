@@ -290,6 +290,22 @@ def follow_queued(
         bar.close()
 
 
+def run_or_follow(
+    *,
+    job: Job,
+    queue: bool,
+    user,
+    run: Callable[[int, str], str],
+    progress: Callable[[Job], tuple[float, str]],
+    out: OutputWrapper,
+) -> Job | None:
+    """Follow a queued job, or run it here; the finished job, or None if the user stopped
+    following a queued one."""
+    if queue:
+        return follow_queued(job=job, progress=progress, out=out)
+    return run_inline(job=job, user=user, run=run, progress=progress, out=out)
+
+
 def job_outcome(job: Job) -> str:
     """``Completed``, ``Failed: why``, ``Canceled``... for the last line of a command."""
     text = job.get_status_display()

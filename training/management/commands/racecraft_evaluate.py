@@ -8,15 +8,13 @@ from typing import Any
 from django.core.management.base import BaseCommand
 
 from training import jobs, services
-from training.cli_services import evaluation_create
 from training.management.cli import (
     add_owner_argument,
     evaluation_progress,
-    follow_queued,
     owner_and_model,
     require_completed,
     results_table,
-    run_inline,
+    run_or_follow,
     service_errors,
 )
 from training.models import Direction
@@ -71,27 +69,16 @@ class Command(BaseCommand):
             "crash_penalty_s": options["crash_penalty"],
         }
         with service_errors():
-            if queue:
-                job = services.evaluation_start(model=model, user=user, **settings)
-            else:
-                job = evaluation_create(model=model, user=user, **settings)
+            job = services.evaluation_start(model=model, user=user, enqueue=queue, **settings)
         where = "queued for a worker" if queue else "running here"
         self.stdout.write(
             f"Evaluation {job.pk} of model {model.pk} ({model.name}): {where}, {job.laps} laps "
             f"on {job.track_id} ({job.direction})"
         )
-        if queue:
-            done = follow_queued(job=job, progress=evaluation_progress, out=self.stdout)
-            if done is None:
-                return
-        else:
-            done = run_inline(
-                job=job,
-                user=user,
-                run=jobs.run_evaluation_job,
-                progress=evaluation_progress,
-                out=self.stdout,
-            )
+        done = run_or_follow(job=job, queue=queue, user=user, run=jobs.run_evaluation_job,
+                             progress=evaluation_progress, out=self.stdout)  # fmt: skip
+        if done is None:
+            return
         if done.lap_rows:
             self.stdout.write(results_table(done))
         completed = done.results.get("completed_laps", 0) if isinstance(done.results, dict) else 0

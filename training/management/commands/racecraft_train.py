@@ -8,14 +8,12 @@ from typing import Any
 from django.core.management.base import BaseCommand
 
 from training import jobs, services
-from training.cli_services import training_create
 from training.management.cli import (
     add_owner_argument,
-    follow_queued,
     mmss,
     owner_and_model,
     require_completed,
-    run_inline,
+    run_or_follow,
     service_errors,
     training_progress,
 )
@@ -42,27 +40,16 @@ class Command(BaseCommand):
     def handle(self, *args: Any, model_id: int, owner: str | None, queue: bool, **options: Any):
         user, model = owner_and_model(model_id, owner)
         with service_errors():
-            if queue:
-                job = services.training_start(model=model, user=user)
-            else:
-                job = training_create(model=model, user=user)
+            job = services.training_start(model=model, user=user, enqueue=queue)
         where = "queued for a worker" if queue else "running here"
         self.stdout.write(
             f"Training job {job.pk} of model {model.pk} ({model.name}): {where}, "
             f"up to {job.max_minutes} min on {model.track_id}"
         )
-        if queue:
-            done = follow_queued(job=job, progress=training_progress, out=self.stdout)
-            if done is None:
-                return
-        else:
-            done = run_inline(
-                job=job,
-                user=user,
-                run=jobs.run_training_job,
-                progress=training_progress,
-                out=self.stdout,
-            )
+        done = run_or_follow(job=job, queue=queue, user=user, run=jobs.run_training_job,
+                             progress=training_progress, out=self.stdout)  # fmt: skip
+        if done is None:
+            return  # the user stopped following a queued job; it goes on in the worker
         self._report(done)
         require_completed(done, "training job")
 
