@@ -35,6 +35,7 @@ def three_laps(track, direction: str, action_space=CONTINUOUS) -> list[float]:
     assert info["status"] == "lap_complete", (
         f"{track} {direction}: {info['status']} at {info['progress']:.1f}% of lap {info['lap']}"
     )
+    assert info["progress"] == 100.0 and info["params"]["progress"] == 100.0  # a full lap
     times = [lap.time_s for lap in info["laps"]]
     print(f"\n{getattr(track, 'track_id', track)} {direction}: laps {[f'{t:.2f}' for t in times]}")
     return times
