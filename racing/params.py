@@ -130,17 +130,18 @@ def _add_objects(params: dict, track: Track, car: Location, objects) -> None:
     params["objects_speed"] = [float(o.speed) for o in objects]
     params["objects_heading"] = [heading_deg(o.heading) for o in objects]
     params["objects_distance_from_center"] = [lo.distance for lo in locs]
-    # Behind = the nearest object at or behind the car along the track, ahead = the nearest
-    # in front; both are the same index when there is only one object.
-    length = track.length
-    gaps = [((lo.s - car.s) % length if track.closed else lo.s - car.s) for lo in locs]
-    ahead = min(range(len(gaps)), key=lambda i: gaps[i] if gaps[i] >= 0 else math.inf)
-    behind = max(range(len(gaps)), key=lambda i: gaps[i] if gaps[i] >= 0 else -math.inf)
-    if not track.closed:
-        ahead_candidates = [i for i, g in enumerate(gaps) if g >= 0]
-        behind_candidates = [i for i, g in enumerate(gaps) if g < 0]
-        ahead = min(ahead_candidates, key=lambda i: gaps[i]) if ahead_candidates else 0
-        behind = max(behind_candidates, key=lambda i: gaps[i]) if behind_candidates else 0
+    # Ahead = the nearest object in front of the car along the track, behind = the nearest one
+    # behind it; on a loop every object is both, at some distance, so both always exist.
+    if track.closed:
+        gaps = [(lo.s - car.s) % track.length for lo in locs]
+        ahead = min(range(len(gaps)), key=gaps.__getitem__)
+        behind = max(range(len(gaps)), key=gaps.__getitem__)
+    else:
+        gaps = [lo.s - car.s for lo in locs]
+        front = [i for i, g in enumerate(gaps) if g >= 0]
+        back = [i for i, g in enumerate(gaps) if g < 0]
+        ahead = min(front, key=gaps.__getitem__) if front else 0
+        behind = max(back, key=gaps.__getitem__) if back else 0
     params["closest_objects"] = [behind, ahead]
 
 

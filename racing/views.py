@@ -57,7 +57,6 @@ def draw_box(img: np.ndarray, cam: PinholeCamera, pose: Pose, corners: np.ndarra
     if np.all(depth <= 0.02):
         return
     eye = cam_position(cam, pose)
-    centre = corners.mean(axis=0)
     yaw_vec = corners[4, :2] - corners[0, :2]
     yaw = math.atan2(yaw_vec[1], yaw_vec[0])
     c, s = math.cos(yaw), math.sin(yaw)
@@ -69,7 +68,6 @@ def draw_box(img: np.ndarray, cam: PinholeCamera, pose: Pose, corners: np.ndarra
         if np.dot(n_world, eye - face_centre) <= 0 or np.any(depth[list(idx)] <= 0.02):
             continue
         faces.append((float(np.linalg.norm(face_centre - eye)), idx, shade))
-    del centre
     for _, idx, shade in sorted(faces, reverse=True):
         pts = np.round(pix[list(idx)] * 16).astype(np.int32)
         colour = tuple(int(v * shade) for v in rgb)

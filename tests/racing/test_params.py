@@ -166,3 +166,23 @@ def test_scenarios_are_complete_and_consistent(reinvent, situation):
 def test_scenario_rejects_unknown_situation(reinvent):
     with pytest.raises(ValueError, match="unknown situation"):
         scenario_params(reinvent, "moon")
+
+
+def test_closest_objects_are_behind_and_ahead_along_the_track():
+    from racing.car import Pose
+    from racing.params import RaceObject, build_params
+    from racing.tracks import TrackCatalog
+
+    track = TrackCatalog().load("racecraft_oval")
+    objects = [RaceObject(*track.point_at(s)) for s in (2.0, 8.0, 15.0)]
+    car = track.locate(*track.point_at(5.0))
+    params = build_params(track=track, pose=Pose(0, 0, 0), loc=car, wheels_on_track=4,
+                          steering_angle=0.0, speed=1.0, progress=0.0, steps=1,
+                          objects=objects)  # fmt: skip
+    assert params["closest_objects"] == [0, 1]
+    assert params["objects_distance"] == pytest.approx([2.0, 8.0, 15.0], abs=1e-6)
+    near_end = track.locate(*track.point_at(track.length - 0.5))
+    wrapped = build_params(track=track, pose=Pose(0, 0, 0), loc=near_end, wheels_on_track=4,
+                           steering_angle=0.0, speed=1.0, progress=0.0, steps=1,
+                           objects=objects)  # fmt: skip
+    assert wrapped["closest_objects"] == [2, 0]  # ahead wraps past the start line
