@@ -119,6 +119,19 @@
       progress.textContent = `${done} of ${evaluation.laps} laps completed`;
       if (bar) bar.style.width = `${(100 * done) / evaluation.laps}%`;
     };
+    const evalCard = document.getElementById("evaluation-live");
+    let evalFrame = null;
+    let evalDrawing = false;
+    const drawEvalFrame = () => {
+      evalDrawing = false;
+      if (!evalFrame || !evalCard) return;
+      const frame = evalFrame;
+      evalFrame = null;
+      if (frame.chase) document.getElementById("eval-frame-chase").src = `data:image/jpeg;base64,${frame.chase}`;
+      if (frame.camera) document.getElementById("eval-frame-camera").src = `data:image/jpeg;base64,${frame.camera}`;
+      evalCard.dataset.frames = Number(evalCard.dataset.frames) + 1;
+      document.getElementById("eval-video-state").textContent = "live";
+    };
     openSocket(`/ws/evaluation/${evaluation.id}/`, {
       snapshot: (m) => {
         setStatus(document.getElementById("evaluation-status"), m.status);
@@ -126,6 +139,14 @@
         if (FINISHED.includes(m.status)) location.reload();
       },
       progress: (m) => showLaps(m.laps_done),
+      frame: (m) => {
+        // The newest frame wins; stale ones are dropped (at most one paint per animation frame).
+        evalFrame = m;
+        if (!evalDrawing) {
+          evalDrawing = true;
+          requestAnimationFrame(drawEvalFrame);
+        }
+      },
       status: (m) => {
         setStatus(document.getElementById("evaluation-status"), m.status);
         if (FINISHED.includes(m.status)) {
