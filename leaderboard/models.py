@@ -125,6 +125,16 @@ class Event(models.Model):
     def __str__(self) -> str:
         return self.name
 
+    @property
+    def track_name(self) -> str:
+        """The track's display name (its id when the track is no longer in the catalogue)."""
+        from training.services import catalog
+
+        try:
+            return catalog().info(self.track_id).name
+        except (KeyError, ValueError, OSError):
+            return self.track_id
+
     def is_open(self, now: datetime | None = None) -> bool:
         now = now or timezone.now()
         return self.opens_at <= now < self.closes_at

@@ -24,6 +24,7 @@ from leaderboard.models import Event, Submission
 from leaderboard.profiles import notifications_mark_read, profile_for, profile_update
 from leaderboard.services import submission_create
 from training.downloads import evaluation_video
+from training.http import media_response
 from training.services import ServiceError
 
 
@@ -265,6 +266,6 @@ def submission_video(request: HttpRequest, submission_id: int) -> HttpResponse:
         data = evaluation_video(submission.evaluation)
     except ServiceError:
         raise Http404("No video") from None
-    response = HttpResponse(data, content_type="video/mp4")
-    response["Content-Disposition"] = f'inline; filename="submission-{submission.pk}.mp4"'
-    return response
+    return media_response(
+        request, data, content_type="video/mp4", filename=f"submission-{submission.pk}.mp4"
+    )

@@ -12,6 +12,7 @@ from django.views.decorators.http import require_safe
 
 from console.views.owned import owned_evaluation, owned_model
 from training import downloads
+from training.http import media_response
 from training.models import RacingModel
 from training.services import ServiceError
 
@@ -49,7 +50,6 @@ def evaluation_video(request: HttpRequest, evaluation_id: int) -> HttpResponse:
         data = downloads.evaluation_video(evaluation)
     except ServiceError:
         raise Http404("This evaluation has no video") from None
-    response = HttpResponse(data, content_type="video/mp4")
-    response["Content-Disposition"] = f'inline; filename="evaluation-{evaluation.pk}.mp4"'
-    response["Accept-Ranges"] = "none"
-    return response
+    return media_response(
+        request, data, content_type="video/mp4", filename=f"evaluation-{evaluation.pk}.mp4"
+    )

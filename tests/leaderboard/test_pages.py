@@ -61,6 +61,7 @@ def test_event_page_submit_and_screen(client, event, alice):
     client.force_login(alice)
     html = client.get(f"/league/events/{event.pk}/").content.decode()
     assert "Enter a model" in html and f'value="{model.pk}"' in html
+    assert "<dd>Racecraft Oval</dd>" in html  # the track's name, not its id
     response = client.post(f"/league/events/{event.pk}/submit/", {"model": model.pk}, follow=True)
     assert "is submitted" in response.content.decode()
     sub = Submission.objects.get()
@@ -97,6 +98,8 @@ def test_who_may_watch_a_submission(client, event, alice, bob, settings, tmp_pat
     assert client.get(detail).status_code == 200
     response = client.get(video)
     assert response.status_code == 200 and response["Content-Type"] == "video/mp4"
+    partial = client.get(video, HTTP_RANGE="bytes=1-2")  # browsers seek with ranges
+    assert partial.status_code == 206 and partial.content == b"p4"
     assert response.content == b"mp4"
     client.logout()
     assert client.get(video).status_code == 200  # a public event: anyone may watch
