@@ -32,6 +32,8 @@ from training.rollout import EnvSpec
 from training.vecenv import make_vec_env
 
 INITIAL_EPISODE_STEPS = 40.0
+MAX_SAC_CHUNKS = 200
+"""An SAC iteration ends after this many chunks even if fewer episodes finished."""
 """Guess of an early episode's length (steps) before any has finished."""
 
 
@@ -162,6 +164,7 @@ class TrainingLoop:
         self.episode_progress: list[float] = []
         self._stop: str | None = None
         self.rollout_done_at = 0.0
+        self.longest_seen = 0  # steps of the longest episode seen so far, finished or not
         set_torch_threads(config.torch_threads)
         self.venv: VecEnv = make_vec_env(
             config.spec,
@@ -208,6 +211,8 @@ class TrainingLoop:
         trace = info.get("trace")
         if trace is not None:
             self.rows.append(trace)
+            if isinstance(trace[1], int) and trace[1] > self.longest_seen:
+                self.longest_seen = trace[1]
         frame = info.get("frame")
         if frame is not None:
             self.hooks.on_frame(frame)
@@ -231,16 +236,27 @@ class TrainingLoop:
         model = self.model
         hp = self.config.hyperparameters
         if isinstance(model, DeepRacerPPO):
+            # PPO learns from one rollout: size it so that about N episodes fit in it.
             recent = self.episode_steps[-50:]
-            mean_len = float(np.mean(recent)) if recent else INITIAL_EPISODE_STEPS
+            mean_len = (
+                float(np.mean(recent))
+                if recent
+                else max(INITIAL_EPISODE_STEPS, float(self.longest_seen))
+            )
             n_steps = plan_rollout_steps(hp.num_episodes_between_training, mean_len, model.n_envs)
             model.set_rollout_steps(n_steps)
-            steps = n_steps * model.n_envs
-        else:
-            recent = self.episode_steps[-20:]
-            mean_len = float(np.mean(recent)) if recent else INITIAL_EPISODE_STEPS
-            steps = int(max(64, hp.num_episodes_between_training * mean_len))
-        model.learn(
+            self._learn(n_steps * model.n_envs)
+            return
+        # SAC learns as it drives: drive on in chunks until N more episodes have finished.
+        target = len(self.episode_steps) + hp.num_episodes_between_training
+        chunk = max(64, 16 * model.n_envs)
+        for _ in range(MAX_SAC_CHUNKS):
+            self._learn(chunk)
+            if len(self.episode_steps) >= target or self.stop_reason():
+                break
+
+    def _learn(self, steps: int) -> None:
+        self.model.learn(
             total_timesteps=steps,
             reset_num_timesteps=False,
             callback=_StepWatcher(self),

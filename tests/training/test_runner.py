@@ -1,0 +1,84 @@
+"""The training loop on its own (no Django): DeepRacer iterations with PPO and SAC, sandboxed
+rewards, checkpoints that load safely, stopping, and resuming from a checkpoint."""
+
+from __future__ import annotations
+
+import pytest
+
+from training.checkpoints import load_checkpoint
+from training.hyperparams import parse_hyperparameters
+from training.metadata import build_metadata
+from training.rollout import EnvSpec
+from training.runner import TrainingConfig, TrainingHooks, train
+
+CONTINUOUS = {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 3.0}}
+DISCRETE = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
+REWARD = """
+def reward_function(params):
+    return params["speed"] if params["all_wheels_on_track"] else 1e-3
+"""
+pytestmark = pytest.mark.slow
+
+
+class Collect(TrainingHooks):
+    def __init__(self, iterations: int) -> None:
+        self.iterations = iterations
+        self.results = []
+        self.checkpoints = []
+        self.rows = []
+        self.episodes = []
+
+    def on_episode(self, entry: dict) -> None:
+        self.episodes.append(entry)
+
+    def on_iteration(self, result, checkpoint, rows) -> None:
+        self.results.append(result)
+        self.checkpoints.append(checkpoint)
+        self.rows.append(rows)
+
+    def should_stop(self) -> bool:
+        return len(self.results) >= self.iterations
+
+
+@pytest.mark.parametrize(
+    "algorithm, actions",
+    [("clipped_ppo", DISCRETE), ("clipped_ppo", CONTINUOUS), ("sac", CONTINUOUS)],
+)
+def test_iterations_with_a_sandboxed_reward(algorithm, actions):
+    hooks = Collect(iterations=2)
+    config = TrainingConfig(
+        spec=EnvSpec(track="racecraft_summit", action_space=actions),  # narrow: short episodes
+        algorithm=algorithm,
+        hyperparameters=parse_hyperparameters(
+            {"num_episodes_between_training": 8, "num_epochs": 3, "batch_size": 32}, algorithm
+        ),
+        max_minutes=3,
+        reward_source=REWARD,
+        num_envs=2,
+        eval_episodes=2,
+    )
+    summary = train(config, hooks)
+    assert summary.stopped_by == "user" and summary.iterations == 2
+    first = hooks.results[0]
+    assert first.iteration == 1 and first.steps > 0 and first.episodes >= 1
+    assert 0.0 <= first.eval_progress <= 100.0 and len(first.evaluation.progress) == 2
+    assert hooks.results[0].best  # the first iteration is the best so far
+    assert all(len(row) == 19 for row in hooks.rows[0])
+    assert {"reward_score", "completion_percentage", "episode_status"} <= set(hooks.episodes[0])
+    metadata = build_metadata(action_space=actions, training_algorithm=algorithm,
+                              sensor=["FRONT_FACING_CAMERA"],
+                              neural_network="RACECRAFT_LEAN_CNN")  # fmt: skip
+    model = load_checkpoint(hooks.checkpoints[-1], metadata)  # nothing unpickled
+    assert model.num_timesteps == hooks.results[-1].total_steps
+
+
+def test_training_resumes_from_a_checkpoint():
+    spec = EnvSpec(track="racecraft_oval", action_space=DISCRETE)
+    hp = parse_hyperparameters({"num_episodes_between_training": 4, "num_epochs": 3})
+    common = {"spec": spec, "hyperparameters": hp, "reward_source": REWARD, "num_envs": 4,
+              "eval_episodes": 1}  # fmt: skip
+    first = Collect(iterations=1)
+    train(TrainingConfig(**common), first)
+    again = Collect(iterations=1)
+    train(TrainingConfig(**common, initial_checkpoint=first.checkpoints[0]), again)
+    assert again.results[0].total_steps > first.results[0].total_steps  # steps carried on
