@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import socket
+import threading
 import time
 
 from django.db import transaction
@@ -40,6 +41,38 @@ from training.vecenv import RolloutError
 log = logging.getLogger(__name__)
 STOP_POLL_S = 1.0
 HEARTBEAT_S = 15.0
+
+
+class Heartbeat:
+    """Stamps ``heartbeat_at`` every ``HEARTBEAT_S`` seconds from a thread of its own while a
+    job runs, however long one policy update takes. If the worker process dies, the stamps
+    stop and the orphan reaper (services.jobs_reap_orphans) marks the job failed."""
+
+    def __init__(self, job_model, job_id: int, every: float = HEARTBEAT_S) -> None:
+        self._rows = job_model.objects.filter(pk=job_id)
+        self._every = every
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"heartbeat-{job_id}", daemon=True)
+
+    def _run(self) -> None:
+        from django.db import connection
+
+        try:
+            while not self._stop.wait(self._every):
+                try:
+                    self._rows.update(heartbeat_at=timezone.now())
+                except Exception:  # noqa: BLE001 - a missed beat is retried on the next one
+                    log.warning("could not record a heartbeat", exc_info=True)
+        finally:
+            connection.close()
+
+    def __enter__(self) -> Heartbeat:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
 
 
 def env_spec(model: RacingModel, *, track_id: str | None = None, direction: str | None = None):
@@ -78,7 +111,6 @@ class JobHooks(TrainingHooks):
         self.frames = live.FramePublisher(self.group)
         self._stop_checked = 0.0
         self._stop = False
-        self._beat = 0.0
         self._episodes: list[dict] = []
         self._episode_count = 0
 
@@ -88,9 +120,6 @@ class JobHooks(TrainingHooks):
         if now - self._stop_checked >= STOP_POLL_S:
             self._stop_checked = now
             self._stop = TrainingJob.objects.filter(pk=self.job.pk, stop_requested=True).exists()
-            if now - self._beat >= HEARTBEAT_S:
-                self._beat = now
-                TrainingJob.objects.filter(pk=self.job.pk).update(heartbeat_at=timezone.now())
         return self._stop
 
     def frames_wanted(self) -> bool:
@@ -251,7 +280,8 @@ def run_training_job(job_id: int, worker: str = "") -> str:
             remote=_remote_rollouts(),
         )
         _set_status(job, JobStatus.IN_PROGRESS)
-        summary = train(config, hooks)
+        with Heartbeat(TrainingJob, job.pk):
+            summary = train(config, hooks)
     except (RolloutError, SandboxError, CheckpointError, StoreError) as exc:
         job_fail(job=job, error=str(exc))
         return "failed"
@@ -321,15 +351,16 @@ def run_evaluation_job(evaluation_id: int, worker: str = "") -> str:
 
         frames = live.FramePublisher(group)
         try:
-            report = evaluate(
-                sb3_policy(policy_model),
-                env_spec(model, track_id=job.track_id, direction=job.direction),
-                settings,
-                on_progress=on_progress,
-                should_stop=should_stop,
-                on_frame=frames.publish,
-                frames_wanted=frames.watched,
-            )
+            with Heartbeat(EvaluationJob, job.pk):
+                report = evaluate(
+                    sb3_policy(policy_model),
+                    env_spec(model, track_id=job.track_id, direction=job.direction),
+                    settings,
+                    on_progress=on_progress,
+                    should_stop=should_stop,
+                    on_frame=frames.publish,
+                    frames_wanted=frames.watched,
+                )
         finally:
             frames.close()
         store.put_bytes(keys.evaluation_metrics(job.pk),

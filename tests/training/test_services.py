@@ -224,3 +224,20 @@ def test_delete_refused_while_training(alice):
     TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS)
     with pytest.raises(ServiceError, match="stop the model's training"):
         services.model_delete(model=model, user=alice)
+
+
+@pytest.mark.django_db(transaction=True)
+def test_a_heartbeat_thread_stamps_a_running_job(alice):
+    """The stamp comes from a thread of its own, so a long policy update cannot starve it."""
+    import time
+
+    from training.jobs import Heartbeat
+
+    model = create(alice)
+    job = TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS)
+    with Heartbeat(TrainingJob, job.pk, every=0.05):
+        time.sleep(0.5)  # the main thread is busy; beats go on
+    job.refresh_from_db()
+    assert job.heartbeat_at is not None
+    assert (timezone.now() - job.heartbeat_at).total_seconds() < 2
+    assert services.jobs_reap_orphans(stale_after_s=300) == 0
