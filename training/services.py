@@ -52,6 +52,11 @@ class ServiceError(Exception):
         self.message = message
         self.field = field
 
+    @property
+    def sentence(self) -> str:
+        """The message as a sentence for a page: capitalised."""
+        return self.message[:1].upper() + self.message[1:]
+
 
 class RewardRejected(ServiceError):
     """The reward function failed validation; ``errors`` are DeepRacer-style error dicts."""

@@ -53,5 +53,5 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
         return JsonResponse({"ok": False, "errors": exc.errors})
     except services.ServiceError as exc:
         field = {"track_id": "track", "reward_function": "source"}.get(exc.field or "", exc.field)
-        return _error(exc.message[:1].upper() + exc.message[1:], field=field)
+        return _error(exc.sentence, field=field)
     return JsonResponse({"ok": True, "errors": [], "rewards": result["rewards"]})

@@ -33,7 +33,7 @@ def model_download(request: HttpRequest, model_id: int, kind: str) -> HttpRespon
     try:
         data = build(model)
     except ServiceError as exc:
-        messages.error(request, exc.message[:1].upper() + exc.message[1:])
+        messages.error(request, exc.sentence)
         if request.GET.get("back") == "list":
             return redirect("models")
         return redirect("model-detail", model_id=model.pk)

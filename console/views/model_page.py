@@ -73,7 +73,7 @@ def training_start(request: HttpRequest, model_id: int) -> HttpResponse:
     try:
         services.training_start(model=model, user=request.user)
     except services.ServiceError as exc:
-        messages.error(request, exc.message[:1].upper() + exc.message[1:])
+        messages.error(request, exc.sentence)
     else:
         messages.success(request, "Training queued: it starts as soon as a worker is free.")
     return redirect("model-detail", model_id=model.pk)
@@ -86,7 +86,7 @@ def training_stop(request: HttpRequest, job_id: int) -> HttpResponse:
     try:
         services.job_stop(job=job, user=request.user)
     except services.ServiceError as exc:
-        messages.error(request, exc.message[:1].upper() + exc.message[1:])
+        messages.error(request, exc.sentence)
     else:
         messages.success(request, "Stopping: the model keeps its last checkpoint.")
     return redirect("model-detail", model_id=job.model_id)
@@ -124,5 +124,5 @@ def evaluation_stop(request: HttpRequest, evaluation_id: int) -> HttpResponse:
     try:
         services.job_stop(job=evaluation, user=request.user)
     except services.ServiceError as exc:
-        messages.error(request, exc.message[:1].upper() + exc.message[1:])
+        messages.error(request, exc.sentence)
     return redirect(f"/models/{evaluation.model_id}/#evaluation")
