@@ -62,16 +62,27 @@ class Location:
     y: float
 
 
-def load_waypoints(path: str | Path) -> np.ndarray:
-    """Read a DeepRacer ``.npy`` track file, raising :class:`TrackError` when it is unusable."""
-    path = Path(path)
-    data = path.read_bytes()
+def parse_waypoints(data: bytes) -> np.ndarray:
+    """The array in the bytes of a ``.npy`` file; :class:`TrackError` if they are not one.
+
+    Only ``.npy`` is accepted: ``np.load`` would also open ``.npz``/zip archives, and pickles
+    are never loaded.
+    """
     if not data.startswith(NPY_MAGIC):
-        raise TrackError(f"{path.name}: not a NumPy .npy array")
+        raise TrackError("not a NumPy .npy array")
     try:
         return np.load(io.BytesIO(data), allow_pickle=False)
     except (ValueError, OSError, EOFError, MemoryError) as exc:
-        raise TrackError(f"{path.name}: not a readable NumPy .npy array ({exc})") from exc
+        raise TrackError(f"not a NumPy .npy array ({exc})") from exc
+
+
+def load_waypoints(path: str | Path) -> np.ndarray:
+    """Read a DeepRacer ``.npy`` track file, raising :class:`TrackError` when it is unusable."""
+    path = Path(path)
+    try:
+        return parse_waypoints(path.read_bytes())
+    except TrackError as exc:
+        raise TrackError(f"{path.name}: {exc}") from exc
 
 
 def _clean(array: np.ndarray) -> tuple[np.ndarray, bool]:

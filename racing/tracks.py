@@ -7,7 +7,6 @@ Built-in tracks live in ``racing/tracks/`` as DeepRacer-format ``.npy`` files wi
 
 from __future__ import annotations
 
-import io
 import json
 import re
 from dataclasses import dataclass
@@ -16,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from racing.track import NPY_MAGIC, Track, TrackError
+from racing.track import Track, TrackError, parse_waypoints
 
 BUILTIN_DIR = Path(__file__).resolve().parent / "tracks"
 TRACK_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,63}\Z")
@@ -142,12 +141,7 @@ def import_track(
         )
     if len(data) > MAX_TRACK_FILE_BYTES:
         raise TrackError(f"track file is {len(data)} bytes; the limit is {MAX_TRACK_FILE_BYTES}")
-    if not data.startswith(NPY_MAGIC):  # np.load would also open .npz/zip archives
-        raise TrackError("not a NumPy .npy array (the file does not start with the .npy magic)")
-    try:
-        array = np.load(io.BytesIO(data), allow_pickle=False)
-    except (ValueError, OSError, EOFError, MemoryError) as exc:
-        raise TrackError(f"not a NumPy .npy array ({exc})") from exc
+    array = parse_waypoints(data)
     track = Track.from_array(array, track_id=track_id, name=name or track_id)
     dest = Path(dest_dir)
     if (BUILTIN_DIR / f"{track_id}.npy").exists():
