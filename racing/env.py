@@ -275,7 +275,7 @@ class RacingEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._view is None:
-            from racing.views import ChaseView, TopDownView
+            from racing.video import ChaseView, TopDownView
 
             ground = ground_for(self.track, resolution=VIEW_RESOLUTION_M, rgb=True)
             self._view = ChaseView(ground) if self.render_view == "chase" else TopDownView(ground)

@@ -18,7 +18,7 @@ import numpy as np
 from racing.env import RacingEnv
 from racing.rules import STATUS_LABELS, LapRecord, Status
 from racing.sensors import ground_for
-from racing.views import ChaseView
+from racing.video import ChaseView
 from training.rollout import EnvSpec, FrameGrabber
 
 MIN_LAPS, MAX_LAPS = 3, 5

@@ -155,7 +155,7 @@ class FrameGrabber:
         self._last = now
         if self._chase is None:
             from racing.sensors import ground_for
-            from racing.views import ChaseView
+            from racing.video import ChaseView
 
             self._chase = ChaseView(ground_for(self.env.track, resolution=0.01, rgb=True))
         camera = observation[..., 0]
