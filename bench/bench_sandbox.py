@@ -18,7 +18,7 @@ import time
 
 from racing.params import scenario_params
 from racing.tracks import TrackCatalog
-from training.reward_examples import example_source
+from training.rewards.examples import example_source
 from training.sandbox import SandboxedReward, SandboxLimits, run_sandboxed
 from training.sandbox.oneshot import TIMING_TARGET
 

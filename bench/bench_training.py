@@ -28,10 +28,10 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 
-from training.hyperparams import Hyperparameters  # noqa: E402
-from training.policies import LEAN, SHALLOW  # noqa: E402
-from training.rollout import EnvSpec  # noqa: E402
-from training.runner import IterationResult, TrainingConfig, TrainingHooks, train  # noqa: E402
+from training.rl.hyperparams import Hyperparameters  # noqa: E402
+from training.rl.policies import LEAN, SHALLOW  # noqa: E402
+from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train  # noqa: E402
+from training.rollout.envs import EnvSpec  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "tracks"
 ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, -15, 0, 15, 30) for v in (1.5, 3.0)]

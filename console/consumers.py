@@ -23,8 +23,9 @@ from asgiref.sync import sync_to_async
 from channels.db import database_sync_to_async
 from channels.generic.websocket import AsyncJsonWebsocketConsumer
 
-from training import live, web_services
+from training import selectors
 from training.models import EvaluationJob, TrainingJob
+from training.worker import live
 
 NOT_FOUND = 4404
 """Close code for a job that is not the user's (or does not exist): like an HTTP 404."""
@@ -47,7 +48,7 @@ class JobConsumer(AsyncJsonWebsocketConsumer):
             return None
         try:
             job_id = int(self.scope["url_route"]["kwargs"]["job_id"])
-            return web_services.job_for_owner(user, self.kind, job_id)
+            return selectors.job_for_owner(user, self.kind, job_id)
         except (KeyError, ValueError, TrainingJob.DoesNotExist, EvaluationJob.DoesNotExist):
             return None
 
@@ -110,7 +111,7 @@ class TrainingConsumer(JobConsumer):
         return {
             "type": "snapshot",
             "status": job.status,
-            "points": web_services.chart_points(job),
+            "points": selectors.chart_points(job),
             "elapsed_s": round(job.elapsed_seconds, 1),
             "remaining_s": round(job.remaining_seconds, 1),
             "max_minutes": job.max_minutes,

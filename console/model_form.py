@@ -24,7 +24,9 @@ from racing.actions import (
     ActionSpaceError,
     discrete_action_list,
 )
-from training.hyperparams import (
+from training.models import MODEL_NAME_RE, Direction, RaceType
+from training.rewards.examples import example_source
+from training.rl.hyperparams import (
     BATCH_SIZES,
     LOSS_TYPES,
     RANGES,
@@ -33,9 +35,7 @@ from training.hyperparams import (
     Hyperparameters,
     parse_hyperparameters,
 )
-from training.models import MODEL_NAME_RE, Direction, RaceType
-from training.policies import LEAN, NETWORK_LABELS
-from training.reward_examples import example_source
+from training.rl.policies import LEAN, NETWORK_LABELS
 
 SENSORS = [("FRONT_FACING_CAMERA", "Camera"), ("STEREO_CAMERAS", "Stereo camera")]
 ALGORITHMS = [("clipped_ppo", "PPO"), ("sac", "SAC")]

@@ -23,9 +23,9 @@ from leaderboard.forms import EventForm, ProfileForm, SubmitForm
 from leaderboard.models import Event, Submission
 from leaderboard.profiles import notifications_mark_read, profile_for, profile_update
 from leaderboard.services import submission_create
-from training.downloads import evaluation_video
 from training.http import media_response
 from training.services import ServiceError
+from training.services.downloads import evaluation_video
 
 
 def _visible_event(request: HttpRequest, event_id: int) -> Event:

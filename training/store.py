@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from django.conf import settings
 
-from training.layout import ModelKeys
+from training.interchange.layout import ModelKeys
 from training.storage import ObjectStore, store_from_settings
 
 _cache: dict[tuple, ObjectStore] = {}

@@ -1,4 +1,4 @@
-"""Celery tasks: thin wrappers that take ids and call training.jobs / training.services.
+"""Celery tasks: thin wrappers that take ids and call training.worker.jobs / training.services.
 
 Queues by name (console/celery.py): ``train_*`` → training, ``evaluate_*`` → evaluation.
 Jobs are claimed atomically (a retried or duplicated task finds the job taken and skips), and
@@ -12,7 +12,8 @@ import socket
 from celery import shared_task
 from celery.signals import worker_ready
 
-from training import jobs, services
+from training import services
+from training.worker import jobs
 
 
 @shared_task(bind=True, name="training.tasks.train_model", acks_late=False)
@@ -28,7 +29,7 @@ def evaluate_model(self, evaluation_id: int) -> str:
 @shared_task(name="training.tasks.simulate_rollout", acks_late=False)
 def simulate_rollout(**kwargs) -> str:
     """A rollout worker for a trainer on another machine (queue ``simulation``)."""
-    from training.remote import serve_rollout
+    from training.rollout.remote import serve_rollout
 
     return serve_rollout(**kwargs)
 

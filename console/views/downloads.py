@@ -11,10 +11,9 @@ from django.shortcuts import redirect
 from django.views.decorators.http import require_safe
 
 from console.views.owned import owned_evaluation, owned_model
-from training import downloads
 from training.http import media_response
 from training.models import RacingModel
-from training.services import ServiceError
+from training.services import ServiceError, downloads
 
 ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str]] = {
     "car": (downloads.car_model_archive, "{name}-car.tar.gz"),

@@ -13,9 +13,9 @@ from console import tracks
 from console.forms import EvaluateForm, add_service_error
 from console.model_form import HP_LABELS, PPO_ONLY, SAC_ONLY
 from console.views.owned import owned_evaluation, owned_model, owned_training_job
-from training import services, web_services
+from training import selectors, services
 from training.models import JobStatus, RacingModel
-from training.policies import NETWORK_LABELS
+from training.rl.policies import NETWORK_LABELS
 
 SENSOR_LABELS = {"FRONT_FACING_CAMERA": "Camera", "STEREO_CAMERAS": "Stereo camera"}
 ALGORITHM_LABELS = {"clipped_ppo": "PPO", "sac": "SAC"}
@@ -32,8 +32,8 @@ def hyperparameter_rows(model: RacingModel) -> list[tuple[str, object]]:
 
 def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm | None = None,
           status: int = 200) -> HttpResponse:  # fmt: skip
-    job = web_services.latest_training_job(model)
-    evaluations = web_services.evaluations_of(model)
+    job = selectors.latest_training_job(model)
+    evaluations = selectors.evaluations_of(model)
     track_names = {r.info.id: r for r in tracks.track_rows()}
     if evaluate_form is None:
         evaluate_form = EvaluateForm(
@@ -50,7 +50,7 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
         "network_label": NETWORK_LABELS.get(model.neural_network, model.neural_network),
         "hyperparameter_rows": hyperparameter_rows(model),
         "job": job,
-        "chart_points": web_services.chart_points(job) if job else [],
+        "chart_points": selectors.chart_points(job) if job else [],
         "can_start": not model.is_busy and not trained and not (job and job.is_active),
         "can_evaluate": model.has_checkpoint and not model.is_busy,
         "evaluations": evaluations,

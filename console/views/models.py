@@ -12,14 +12,14 @@ from console import tracks
 from console.forms import CloneForm, ImportForm, add_service_error
 from console.model_form import HP_FIELDS, PPO_ONLY, SAC_ONLY, ModelCreateForm
 from console.views.owned import owned_model
-from training import services, web_services
-from training.reward_examples import EXAMPLES, example_source
+from training import selectors, services
+from training.rewards.examples import EXAMPLES, example_source
 
 
 @login_required
 @require_safe
 def model_list(request: HttpRequest) -> HttpResponse:
-    models = list(web_services.models_for_owner(request.user))
+    models = list(selectors.models_for_owner(request.user))
     names = {r.info.id: r.info.name for r in tracks.track_rows()}
     for model in models:
         model.track_name = names.get(model.track_id, model.track_id)

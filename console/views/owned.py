@@ -4,26 +4,26 @@ from __future__ import annotations
 
 from django.http import Http404, HttpRequest
 
-from training import web_services
+from training import selectors
 from training.models import EvaluationJob, RacingModel, TrainingJob
 
 
 def owned_model(request: HttpRequest, model_id: int) -> RacingModel:
     try:
-        return web_services.model_for_owner(request.user, model_id)
+        return selectors.model_for_owner(request.user, model_id)
     except RacingModel.DoesNotExist:
         raise Http404("No such model") from None
 
 
 def owned_training_job(request: HttpRequest, job_id: int) -> TrainingJob:
     try:
-        return web_services.training_job_for_owner(request.user, job_id)
+        return selectors.training_job_for_owner(request.user, job_id)
     except TrainingJob.DoesNotExist:
         raise Http404("No such training job") from None
 
 
 def owned_evaluation(request: HttpRequest, evaluation_id: int) -> EvaluationJob:
     try:
-        return web_services.evaluation_for_owner(request.user, evaluation_id)
+        return selectors.evaluation_for_owner(request.user, evaluation_id)
     except EvaluationJob.DoesNotExist:
         raise Http404("No such evaluation") from None

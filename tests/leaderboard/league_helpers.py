@@ -64,7 +64,7 @@ def make_event(organiser, **overrides) -> Event:
 
 def lap(time_s: float, status: str = "lap_complete", *, off_tracks: int = 0, crashes: int = 0,
         resets: int = 0, trial: int = 1) -> dict:  # fmt: skip
-    """One row of an evaluation's lap table, as training.evaluation writes it."""
+    """One row of an evaluation's lap table, as training.rl.evaluation writes it."""
     return {
         "trial": trial, "time_s": time_s, "progress": 100.0 if status == "lap_complete" else 42.0,
         "status": status, "off_tracks": off_tracks, "off_track_penalty_s": off_tracks * 1.0,

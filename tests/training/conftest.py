@@ -10,8 +10,8 @@ from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from racing.env import RacingEnv
-from training.metadata import ModelMetadata, build_metadata
-from training.policies import policy_kwargs, sac_policy_kwargs
+from training.rl.metadata import ModelMetadata, build_metadata
+from training.rl.policies import policy_kwargs, sac_policy_kwargs
 
 TRACK = "racecraft_summit"
 CONTINUOUS = {"steering_angle": {"low": -25.0, "high": 20.0}, "speed": {"low": 0.5, "high": 3.0}}

@@ -12,14 +12,18 @@ from collections.abc import Callable
 import pytest
 import torch
 
-from training.archive import (
+from training.interchange.archive import (
     ArchiveError,
     ImportLimits,
     import_virtual_model,
     read_archive,
 )
-from training.export import build_virtual_model_archive, checkpoint_bytes, load_checkpoint
-from training.metadata import build_metadata
+from training.interchange.export import (
+    build_virtual_model_archive,
+    checkpoint_bytes,
+    load_checkpoint,
+)
+from training.rl.metadata import build_metadata
 
 REWARD = "def reward_function(params):\n    return float(params['progress']) / 100.0\n"
 

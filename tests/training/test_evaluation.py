@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from racing.controllers import PurePursuitDriver
-from training.evaluation import EvaluationError, EvaluationSettings, evaluate
-from training.rollout import EnvSpec
+from training.rl.evaluation import EvaluationError, EvaluationSettings, evaluate
+from training.rollout.envs import EnvSpec
 
 CONTINUOUS = {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 4}}
 SPEC = EnvSpec(track="racecraft_oval", action_space=CONTINUOUS)
@@ -16,7 +16,7 @@ SPEC = EnvSpec(track="racecraft_oval", action_space=CONTINUOUS)
 @pytest.fixture
 def driven(monkeypatch):
     """Run evaluate() with the pure-pursuit driver on the env it creates."""
-    import training.evaluation as evaluation
+    import training.rl.evaluation as evaluation
 
     made = {}
     original = evaluation.evaluation_env

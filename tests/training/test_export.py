@@ -13,7 +13,7 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from training.export import (
+from training.interchange.export import (
     ARCHIVE_MTIME,
     CheckpointError,
     ExportError,
@@ -25,7 +25,7 @@ from training.export import (
     export_onnx,
     load_checkpoint,
 )
-from training.metadata import build_metadata, parse_metadata
+from training.rl.metadata import build_metadata, parse_metadata
 
 
 def session(onnx_bytes: bytes) -> ort.InferenceSession:
@@ -112,7 +112,7 @@ def test_stereo_export() -> None:
         sensor=["STEREO_CAMERAS"],
         neural_network="RACECRAFT_LEAN_CNN",
     )
-    from training.export import new_model
+    from training.interchange.export import new_model
 
     sess = session(export_onnx(new_model(meta)))
     assert sess.get_inputs()[0].shape == [1, 2, 120, 160]

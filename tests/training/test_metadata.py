@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 
 from racing.actions import ActionSpec
-from training.metadata import (
+from training.rl.metadata import (
     MetadataError,
     ModelMetadata,
     build_metadata,

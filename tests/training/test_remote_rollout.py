@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from training.rollout import EnvSpec
-from training.vecenv import RolloutError, SandboxedVecEnv
+from training.rollout.envs import EnvSpec
+from training.rollout.vecenv import RolloutError, SandboxedVecEnv
 
 ROOT = Path(__file__).resolve().parents[2]
 REWARD = """
@@ -69,7 +69,7 @@ def run(venv, steps: int = 40):
 
 
 def test_remote_rollout_matches_a_local_one(simulation_worker, redis_url, settings):
-    from training.remote import RemoteVecEnv
+    from training.rollout.remote import RemoteVecEnv
 
     spec = EnvSpec(track="racecraft_summit")
     remote = RemoteVecEnv(spec, 4, REWARD, num_slots=2, redis_url=redis_url,
@@ -85,7 +85,7 @@ def test_remote_rollout_matches_a_local_one(simulation_worker, redis_url, settin
 
 
 def test_no_simulation_worker_is_a_clear_error(redis_url, settings, monkeypatch):
-    from training import remote
+    from training.rollout.envs import remote
 
     monkeypatch.setattr(remote, "START_TIMEOUT_S", 2.0)
     monkeypatch.setattr("training.tasks.simulate_rollout.delay", lambda **kwargs: None)

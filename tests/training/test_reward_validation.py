@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from racing.tracks import TrackCatalog
-from training.reward_examples import EXAMPLES, example_source
-from training.reward_validation import SITUATIONS, situation_params, validate_reward_function
+from training.rewards.examples import EXAMPLES, example_source
+from training.rewards.validation import SITUATIONS, situation_params, validate_reward_function
 from training.sandbox import MAX_SOURCE_CHARS, SandboxLimits, check_source
 
 TRACK = "racecraft_oval"
@@ -152,7 +152,7 @@ def test_a_module_that_fails_to_load_is_reported_once() -> None:
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "training.reward_validation", *args],
+        [sys.executable, "-m", "training.rewards.validation", *args],
         capture_output=True,
         text=True,
         cwd=ROOT,

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import pytest
 
-from training.checkpoints import load_checkpoint
-from training.hyperparams import parse_hyperparameters
-from training.metadata import build_metadata
-from training.rollout import EnvSpec
-from training.runner import TrainingConfig, TrainingHooks, train
+from training.rl.checkpoints import load_checkpoint
+from training.rl.hyperparams import parse_hyperparameters
+from training.rl.metadata import build_metadata
+from training.rl.runner import TrainingConfig, TrainingHooks, train
+from training.rollout.envs import EnvSpec
 
 CONTINUOUS = {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 3.0}}
 DISCRETE = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]

@@ -231,7 +231,7 @@ def test_a_heartbeat_thread_stamps_a_running_job(alice):
     """The stamp comes from a thread of its own, so a long policy update cannot starve it."""
     import time
 
-    from training.jobs import Heartbeat
+    from training.worker.jobs import Heartbeat
 
     model = create(alice)
     job = TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS)

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from moto.server import ThreadedMotoServer
 
-from training.layout import ModelKeys, model_prefix
+from training.interchange.layout import ModelKeys, model_prefix
 from training.storage import (
     LocalStore,
     MinioStore,

@@ -18,8 +18,9 @@ import pytest
 from django.contrib.auth import get_user_model
 
 from tests.support import database_url
-from training import downloads, services
+from training import services
 from training.models import EvaluationJob, IterationMetric, JobStatus, RacingModel, TrainingJob
+from training.services import downloads
 from training.store import get_store, keys_for
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -175,7 +176,7 @@ def _onnx_agrees_with_torch(model: RacingModel, onnx_bytes: bytes) -> None:
     import onnxruntime as ort
 
     from racing.env import RacingEnv
-    from training.checkpoints import load_checkpoint
+    from training.rl.checkpoints import load_checkpoint
     from training.services import model_metadata
 
     policy = load_checkpoint(get_store().get_bytes(keys_for(model.pk).best), model_metadata(model))

@@ -2,7 +2,7 @@
 this process with a progress bar, following a queued job, and the evaluation results table.
 
 A job run inline goes through the same code as a Celery worker
-(:func:`training.jobs.run_training_job`), in a background thread; the main thread polls the
+(:func:`training.worker.jobs.run_training_job`), in a background thread; the main thread polls the
 database, draws the bar and turns Ctrl-C into a stop request (``stop_requested``), so the job
 ends cleanly and keeps its last checkpoint. Sandboxed rollout workers run in their own session,
 so a Ctrl-C on the terminal does not reach them.
@@ -158,8 +158,8 @@ def run_inline(
     out: OutputWrapper,
     tty: bool | None = None,
 ) -> Job:
-    """Run ``run(job_id, worker)`` (a task body from :mod:`training.jobs`) in a thread of this
-    process, with a progress bar. The first Ctrl-C asks the job to stop and waits for its clean
+    """Run ``run(job_id, worker)`` (a task body from :mod:`training.worker.jobs`) in a thread of
+    this process, with a progress bar. The first Ctrl-C asks the job to stop and waits for its clean
     end; a second one gives up on it (the job is marked failed). Returns the finished row."""
     failure: list[BaseException] = []
     finished = threading.Event()
@@ -245,7 +245,7 @@ def exit_now(code: int) -> None:
 def quiet_live_updates() -> Iterator[None]:
     """Live updates are for browsers watching the job; without Redis (a command run with no
     console up) each one would log a traceback. Only errors are logged meanwhile."""
-    logger = logging.getLogger("training.live")
+    logger = logging.getLogger("training.worker.live")
     level = logger.level
     logger.setLevel(logging.ERROR)
     try:

@@ -7,7 +7,7 @@ from typing import Any
 
 from django.core.management.base import BaseCommand
 
-from training import jobs, services
+from training import services
 from training.management.cli import (
     add_owner_argument,
     evaluation_progress,
@@ -18,6 +18,7 @@ from training.management.cli import (
     service_errors,
 )
 from training.models import Direction
+from training.worker import jobs
 
 
 class Command(BaseCommand):

@@ -9,9 +9,9 @@ from typing import Any
 
 from django.core.management.base import BaseCommand, CommandError
 
-from training import downloads
 from training.management.cli import add_owner_argument, owner_and_model, service_errors
 from training.models import RacingModel
+from training.services import downloads
 
 ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str, str]] = {
     "car": (downloads.car_model_archive, "{name}-car.tar.gz", "car model"),

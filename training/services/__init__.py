@@ -19,10 +19,7 @@ from django.utils import timezone
 
 from racing.track import TrackError
 from racing.tracks import TrackCatalog, UnknownTrackError
-from training.archive import ArchiveError, import_virtual_model
-from training.evaluation import EvaluationError, EvaluationSettings
-from training.hyperparams import HyperparameterError, parse_hyperparameters
-from training.metadata import MetadataError, ModelMetadata, build_metadata
+from training.interchange.archive import ArchiveError, import_virtual_model
 from training.models import (
     ACTIVE_JOB_STATUSES,
     MODEL_NAME_RE,
@@ -33,7 +30,10 @@ from training.models import (
     RacingModel,
     TrainingJob,
 )
-from training.reward_validation import validate_reward_function
+from training.rewards.validation import validate_reward_function
+from training.rl.evaluation import EvaluationError, EvaluationSettings
+from training.rl.hyperparams import HyperparameterError, parse_hyperparameters
+from training.rl.metadata import MetadataError, ModelMetadata, build_metadata
 from training.sandbox import MAX_SOURCE_CHARS, RewardError
 from training.signals import evaluation_finished
 from training.storage import StoreError

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-from training.export import build_car_archive, build_logs_archive, build_virtual_model_archive
+from training.interchange.export import (
+    build_car_archive,
+    build_logs_archive,
+    build_virtual_model_archive,
+)
 from training.models import EvaluationJob, RacingModel
 from training.services import ServiceError, model_metadata
 from training.storage import ObjectNotFound, StoreError
@@ -22,8 +26,8 @@ def car_model_archive(model: RacingModel) -> bytes:
         return store.get_bytes(keys.car_export)
     except ObjectNotFound:
         pass
-    from training.checkpoints import load_checkpoint
-    from training.export import export_onnx
+    from training.interchange.export import export_onnx
+    from training.rl.checkpoints import load_checkpoint
 
     metadata = model_metadata(model)
     try:

@@ -16,11 +16,7 @@ from django.db import transaction
 from django.utils import timezone
 
 from racing.simtrace import SIMTRACE_COLUMNS
-from training import live
-from training.checkpoints import CheckpointError
-from training.evaluation import EvaluationSettings, evaluate, sb3_policy
-from training.export import build_car_archive, export_onnx
-from training.hyperparams import parse_hyperparameters
+from training.interchange.export import build_car_archive, export_onnx
 from training.models import (
     EpisodeMetric,
     EvaluationJob,
@@ -29,14 +25,18 @@ from training.models import (
     RacingModel,
     TrainingJob,
 )
-from training.rollout import EnvSpec
-from training.runner import IterationResult, TrainingConfig, TrainingHooks, train
+from training.rl.checkpoints import CheckpointError
+from training.rl.evaluation import EvaluationSettings, evaluate, sb3_policy
+from training.rl.hyperparams import parse_hyperparameters
+from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train
+from training.rollout.envs import EnvSpec
+from training.rollout.vecenv import RolloutError
 from training.sandbox import SandboxError
 from training.services import _settle_model, job_fail, model_metadata
 from training.signals import evaluation_finished
 from training.storage import ObjectNotFound, StoreError
 from training.store import get_store, keys_for
-from training.vecenv import RolloutError
+from training.worker import live
 
 log = logging.getLogger(__name__)
 STOP_POLL_S = 1.0
@@ -307,7 +307,7 @@ def _export_car(model: RacingModel) -> None:
     """Write export/car.tar.gz (model_metadata.json + model.onnx) from the best checkpoint."""
     store, keys = get_store(), keys_for(model.pk)
     try:
-        from training.checkpoints import load_checkpoint
+        from training.rl.checkpoints import load_checkpoint
 
         metadata = model_metadata(model)
         policy = load_checkpoint(store.get_bytes(keys.best), metadata)
@@ -324,7 +324,7 @@ def run_evaluation_job(evaluation_id: int, worker: str = "") -> str:
     group = live.job_group("evaluation", job.pk)
     store, keys = get_store(), keys_for(model.pk)
     try:
-        from training.checkpoints import load_checkpoint
+        from training.rl.checkpoints import load_checkpoint
 
         policy_model = load_checkpoint(store.get_bytes(keys.best), model_metadata(model))
         settings = EvaluationSettings(laps=job.laps, off_track_penalty_s=job.off_track_penalty_s,

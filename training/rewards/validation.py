@@ -8,7 +8,7 @@ the first five have no objects), each under DeepRacer's 5 s limit.
 
 Command line::
 
-    python -m training.reward_validation path/to/reward.py --track racecraft_oval
+    python -m training.rewards.validation path/to/reward.py --track racecraft_oval
 
 prints the result as JSON and exits 1 when there are errors (2 for a usage problem).
 """
@@ -109,7 +109,7 @@ def validate_reward_function(
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m training.reward_validation",
+        prog="python -m training.rewards.validation",
         description="Validate a DeepRacer reward function on a track; print JSON.",
     )
     parser.add_argument("path", help="the reward function's .py file")

@@ -19,17 +19,17 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from training.algorithms import (
+from training.rl.algorithms import (
     DeepRacerPPO,
     build_model,
     load_model,
     plan_rollout_steps,
     set_torch_threads,
 )
-from training.hyperparams import Hyperparameters
-from training.policies import LEAN
-from training.rollout import EnvSpec
-from training.vecenv import make_vec_env
+from training.rl.hyperparams import Hyperparameters
+from training.rl.policies import LEAN
+from training.rollout.envs import EnvSpec
+from training.rollout.vecenv import make_vec_env
 
 INITIAL_EPISODE_STEPS = 40.0
 MAX_SAC_CHUNKS = 200

@@ -6,13 +6,14 @@ relative names: absolute paths, ``..`` segments, backslashes, links, devices, en
 members and duplicate names are refused. One common top folder (``my-model/...``) is allowed.
 
 Required (at ``model/`` or ``ip/`` or the top level): ``model_metadata.json`` (checked by
-:mod:`training.metadata`), ``hyperparameters.json`` (by :func:`parse_hyperparameters`),
+:mod:`training.rl.metadata`), ``hyperparameters.json`` (by :func:`parse_hyperparameters`),
 ``reward_function.py`` (UTF-8, at most 140,000 characters) and a Racecraft checkpoint, an SB3
 ``model/<name>.zip`` (the one ``deepracer_checkpoints.json`` names best, else last, else
 ``best.zip``/``last.zip``/the only one). The checkpoint must load for the metadata's
-algorithm, network, camera and action space (:func:`training.export.load_checkpoint`; nothing
-in it is unpickled) and is returned re-saved by Racecraft. DeepRacer's TensorFlow checkpoints
-cannot be loaded and are refused. Every failure is an :class:`ArchiveError` naming the file.
+algorithm, network, camera and action space (:func:`training.rl.checkpoints.load_checkpoint`;
+nothing in it is unpickled) and is returned re-saved by Racecraft. DeepRacer's TensorFlow
+checkpoints cannot be loaded and are refused. Every failure is an :class:`ArchiveError` naming
+the file.
 """
 
 from __future__ import annotations
@@ -28,9 +29,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import BinaryIO
 
-from training.export import CheckpointError, checkpoint_bytes, load_checkpoint
-from training.hyperparams import HyperparameterError, Hyperparameters, parse_hyperparameters
-from training.metadata import MetadataError, ModelMetadata, parse_metadata
+from training.interchange.export import CheckpointError, checkpoint_bytes, load_checkpoint
+from training.rl.hyperparams import HyperparameterError, Hyperparameters, parse_hyperparameters
+from training.rl.metadata import MetadataError, ModelMetadata, parse_metadata
 
 MAX_REWARD_CHARS = 140_000
 TF_SUFFIXES = (".pb", ".ckpt", ".index", ".meta", ".coach_checkpoint")

@@ -35,14 +35,14 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from torch import nn
 
-from training.checkpoints import (  # noqa: F401 - re-exported for callers
+from training.rl.checkpoints import (  # noqa: F401 - re-exported for callers
     CheckpointError,
     checkpoint_bytes,
     load_checkpoint,
     new_model,
     read_checkpoint_tensors,
 )
-from training.metadata import ModelMetadata
+from training.rl.metadata import ModelMetadata
 from training.storage import StoreError, validate_key
 
 OPSET = 17
@@ -210,7 +210,8 @@ def checkpoints_index(best: str, last: str) -> bytes:
 
 
 def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
-    """``virtualmodel.tar.gz``: a model folder that :mod:`training.archive` imports back.
+    """``virtualmodel.tar.gz``: a model folder that :mod:`training.interchange.archive` imports
+    back.
 
     ``files`` maps names inside the model folder (``model/model_metadata.json``,
     ``ip/hyperparameters.json``, ``reward_function.py``, ``model/<checkpoint>.zip``, optional

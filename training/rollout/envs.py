@@ -2,7 +2,7 @@
 bookkeeping (DeepRacer's TrainingMetrics entries), compact per-step info, and live frames.
 
 The same code runs in the trainer's own process (trusted rewards: tests, benchmarks) and inside
-a sandboxed rollout worker (users' rewards, see :mod:`training.vecenv`), so what crosses the
+a sandboxed rollout worker (users' rewards, see :mod:`training.rollout.vecenv`), so what crosses the
 process boundary is plain JSON plus numpy arrays.
 """
 

@@ -19,7 +19,7 @@ from racing.env import RacingEnv
 from racing.rules import STATUS_LABELS, LapRecord, Status
 from racing.sensors import ground_for
 from racing.video import ChaseView
-from training.rollout import EnvSpec, FrameGrabber
+from training.rollout.envs import EnvSpec, FrameGrabber
 
 MIN_LAPS, MAX_LAPS = 3, 5
 DEFAULT_RESETS = 10_000

@@ -12,7 +12,7 @@ Keys (deepracer-spec §2.3) and what happens when one is missing:
 - ``sensor``: exactly one camera, ``FRONT_FACING_CAMERA`` (default) or ``STEREO_CAMERAS``.
   DeepRacer's older names for the single camera, ``OBSERVATION`` and ``LEFT_CAMERA``, are read
   as ``FRONT_FACING_CAMERA``. LIDAR sensors are refused: the simulator has no LIDAR yet.
-- ``neural_network``: one of :data:`training.policies.NETWORKS` (DeepRacer's three CNNs and
+- ``neural_network``: one of :data:`training.rl.policies.NETWORKS` (DeepRacer's three CNNs and
   Racecraft's lean CNN); default ``DEEP_CONVOLUTIONAL_NETWORK_SHALLOW`` as in DeepRacer.
 - ``version``: SimApp physics version, kept as the string given (a number is turned into its
   string); default ``"5"``.
@@ -36,7 +36,7 @@ from racing.sensors import (
     SensorError,
     validate_sensors,
 )
-from training.policies import NETWORKS, SHALLOW
+from training.rl.policies import NETWORKS, SHALLOW
 
 FILENAME = "model_metadata.json"
 ACTION_SPACE_TYPES = ("discrete", "continuous")

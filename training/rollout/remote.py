@@ -2,10 +2,10 @@
 
 When one machine is not enough, ``celery -A console worker -Q simulation`` on more machines
 serves rollouts. The trainer queues one :func:`serve_rollout` task per slot; each task starts a
-sandboxed worker (:mod:`training.vecenv`) on its own machine and relays the trainer's commands
-and the worker's replies through two Redis lists. Messages keep the sandbox's format (JSON and
-raw arrays, never pickles) end to end, so :class:`RemoteVecEnv` gets exactly what a local
-:class:`~training.vecenv.SandboxedVecEnv` gets, and the same seed gives the same episodes.
+sandboxed worker (:mod:`training.rollout.vecenv`) on its own machine and relays the trainer's
+commands and the worker's replies through two Redis lists. Messages keep the sandbox's format
+(JSON and raw arrays, never pickles) end to end, so :class:`RemoteVecEnv` gets exactly what a local
+:class:`~training.rollout.vecenv.SandboxedVecEnv` gets, and the same seed gives the same episodes.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from typing import Any
 
 import redis
 
-from training.rollout import EnvSpec
+from training.rollout.envs import EnvSpec
+from training.rollout.vecenv import ROLLOUT_LIMITS, STEP_TIMEOUT_S, RolloutError, _WorkerVecEnv
 from training.sandbox import SandboxCrashed, SandboxProcess
 from training.sandbox.protocol import ProtocolError, decode, encode
-from training.vecenv import ROLLOUT_LIMITS, STEP_TIMEOUT_S, RolloutError, _WorkerVecEnv
 
 log = logging.getLogger(__name__)
 START_TIMEOUT_S = 120.0
@@ -55,8 +55,8 @@ def serve_rollout(*, redis_url: str, prefix: str, session: str, slot: int, args:
     client = redis.Redis.from_url(redis_url)
     cmd_key, reply_key = _keys(prefix, session, slot)
     worker = SandboxProcess(
-        target="training.vecenv:worker_main",
-        prepare="training.vecenv:worker_prepare",
+        target="training.rollout.vecenv:worker_main",
+        prepare="training.rollout.vecenv:worker_prepare",
         reward_source=reward_source,
         args=args,
         limits=ROLLOUT_LIMITS,

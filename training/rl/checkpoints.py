@@ -22,8 +22,8 @@ import torch
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from training.metadata import ModelMetadata
-from training.policies import policy_kwargs, sac_policy_kwargs
+from training.rl.metadata import ModelMetadata
+from training.rl.policies import policy_kwargs, sac_policy_kwargs
 
 MAX_CHECKPOINT_BYTES = 1_000_000_000  # uncompressed tensors in one checkpoint zip
 

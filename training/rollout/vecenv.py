@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-from training.rollout import EnvRunner, EnvSpec
+from training.rollout.envs import EnvRunner, EnvSpec
 from training.sandbox import SandboxCrashed, SandboxLimits, SandboxProcess
 
 ROLLOUT_LIMITS = SandboxLimits(
@@ -214,8 +214,8 @@ class SandboxedVecEnv(_WorkerVecEnv):
         try:
             for size in sizes:
                 worker = SandboxProcess(
-                    target="training.vecenv:worker_main",
-                    prepare="training.vecenv:worker_prepare",
+                    target="training.rollout.vecenv:worker_main",
+                    prepare="training.rollout.vecenv:worker_prepare",
                     reward_source=reward_source,
                     args={"spec": spec.to_json(), "num_envs": size, "phase": phase},
                     limits=limits,
@@ -269,7 +269,7 @@ def make_vec_env(
     machines when ``remote`` gives ``{"redis_url", "prefix", "slots"}``); in-process for a
     trusted callable."""
     if reward_source is not None and remote:
-        from training.remote import RemoteVecEnv
+        from training.rollout.remote import RemoteVecEnv
 
         return RemoteVecEnv(
             spec,

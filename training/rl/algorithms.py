@@ -23,8 +23,8 @@ from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.vec_env import VecEnv
 
-from training.hyperparams import Hyperparameters
-from training.policies import LEAN, policy_kwargs, sac_policy_kwargs
+from training.rl.hyperparams import Hyperparameters
+from training.rl.policies import LEAN, policy_kwargs, sac_policy_kwargs
 
 CLIP_RANGE = 0.2
 GAE_LAMBDA = 0.95
@@ -164,8 +164,8 @@ def load_model(
     seed: int = 0,
 ) -> DeepRacerPPO | DeepRacerSAC:
     """A model built for ``env`` with the weights of a saved one (``model.save`` bytes), to
-    train further or to drive. Nothing in ``data`` is unpickled (see training.checkpoints)."""
-    from training.checkpoints import load_weights
+    train further or to drive. Nothing in ``data`` is unpickled (see training.rl.checkpoints)."""
+    from training.rl.checkpoints import load_weights
 
     model = build_model(algorithm, env, hp, network=network, seed=seed)
     load_weights(model, data)
