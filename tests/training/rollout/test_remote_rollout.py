@@ -17,7 +17,7 @@ import pytest
 from training.rollout.envs import EnvSpec
 from training.rollout.vecenv import RolloutError, SandboxedVecEnv
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 REWARD = """
 state = {"last": None}
 
