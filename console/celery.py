@@ -8,8 +8,13 @@ Queues (see docs/architecture.md): ``training`` (trainers), ``simulation`` (roll
     <app>.tasks.evaluate_*   -> evaluation
     anything else            -> default
 
-so one machine runs ``-Q training,simulation,evaluation,default`` and a simulation machine
-runs ``celery -A console worker -Q simulation``. A task may still pass ``queue=`` explicitly.
+and ``manage.py up`` runs one worker process per queue (console/launcher.py), so a user's
+long jobs never hold the worker that runs the reaper and the web's quick tasks; a simulation
+machine runs ``celery -A console worker -Q simulation``. A task may still pass ``queue=``.
+
+Every task has a soft and a hard time limit (:data:`TIME_LIMITS`; the soft one raises inside
+the task, which then fails its job with a message; the hard one kills the process): a job's
+task may run as long as the longest job allowed, a quick task a few minutes.
 """
 
 from __future__ import annotations
@@ -33,7 +38,41 @@ TASK_ROUTES = {
     "*.tasks.evaluate_*": {"queue": QUEUE_EVALUATION},
 }
 
+
+def time_limits(job_s: int, evaluation_s: int, quick_s: int) -> dict[str, dict[str, int]]:
+    """Per task name: ``soft_time_limit`` and ``time_limit`` (hard, a minute or 5% later)."""
+
+    def pair(soft: int) -> dict[str, int]:
+        return {"soft_time_limit": soft, "time_limit": soft + max(60, soft // 20)}
+
+    return {
+        "training.tasks.train_model": pair(job_s),
+        "training.tasks.simulate_rollout": pair(job_s),
+        "training.tasks.evaluate_model": pair(evaluation_s),
+        "training.tasks.reap_orphans": pair(min(quick_s, 120)),
+        "*": pair(quick_s),
+    }
+
+
 app = Celery("racecraft")
 app.config_from_object("django.conf:settings", namespace="CELERY")
 app.conf.task_routes = TASK_ROUTES
 app.autodiscover_tasks()
+
+
+def _annotate_time_limits() -> None:
+    from django.conf import settings
+
+    limits = time_limits(
+        getattr(settings, "RACECRAFT_JOB_TIME_LIMIT_S", 1440 * 60 + 1800),
+        getattr(settings, "RACECRAFT_EVALUATION_TIME_LIMIT_S", 1800),
+        getattr(settings, "RACECRAFT_QUICK_TASK_TIME_LIMIT_S", 300),
+    )
+    default = limits.pop("*")
+    app.conf.task_soft_time_limit = default["soft_time_limit"]
+    app.conf.task_time_limit = default["time_limit"]
+    app.conf.task_annotations = limits
+
+
+TIME_LIMITS = time_limits
+_annotate_time_limits()

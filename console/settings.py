@@ -151,6 +151,17 @@ CELERY_ACCEPT_CONTENT = ["json"]
 CELERY_RESULT_EXPIRES = 24 * 3600
 # Jobs are long: a worker takes one task at a time, so others stay free for idle workers.
 CELERY_WORKER_PREFETCH_MULTIPLIER = 1
+# Job tasks are acknowledged late and given back when their worker process dies (set on the
+# tasks, training/tasks.py). An unacknowledged task is handed out again after the visibility
+# timeout: longer than the longest job, so a running job's task is not duplicated (if it were,
+# the job's claim, a compare-and-set, would skip it).
+# Time limits per task type (console/celery.py): jobs may run as long as the longest job allowed
+# (MAX_MINUTES, 24 h) plus set-up and export; evaluations and quick tasks much less.
+RACECRAFT_JOB_TIME_LIMIT_S = envint("RACECRAFT_JOB_TIME_LIMIT_S", 1440 * 60 + 1800, minimum=60)
+RACECRAFT_EVALUATION_TIME_LIMIT_S = envint("RACECRAFT_EVALUATION_TIME_LIMIT_S", 1800, minimum=60)
+RACECRAFT_QUICK_TASK_TIME_LIMIT_S = envint("RACECRAFT_QUICK_TASK_TIME_LIMIT_S", 300, minimum=10)
+for _options in (CELERY_BROKER_TRANSPORT_OPTIONS,):
+    _options.setdefault("visibility_timeout", RACECRAFT_JOB_TIME_LIMIT_S + 3600)
 CELERY_WORKER_CONCURRENCY = envint("CELERY_WORKER_CONCURRENCY", 2, minimum=1)
 # Periodic tasks (celery beat): the league's month-end promotion (daily, idempotent: catches
 # up a missed night) and its safety net for results whose signal was missed.
@@ -178,12 +189,20 @@ MINIO_BUCKET = bucket_name(envstr("MINIO_BUCKET", "deepracer-models"))
 if MINIO_ENDPOINT and not (MINIO_ACCESS_KEY and MINIO_SECRET_KEY):
     raise ImproperlyConfigured("MINIO_ENDPOINT is set: MINIO_ACCESS_KEY and MINIO_SECRET_KEY too")
 STORE_DIR = Path(envstr("STORE_DIR", str(VAR_DIR / "store")))
+# Transient store errors (unreachable, 5xx) are retried with backoff for this long: briefly in
+# the web server (then "storage unavailable, try again"), long in workers (a checkpoint write
+# outlives an outage).
+RACECRAFT_STORE_RETRY_S = envint("RACECRAFT_STORE_RETRY_S", 3, minimum=0)
+RACECRAFT_STORE_WORKER_RETRY_S = envint("RACECRAFT_STORE_WORKER_RETRY_S", 180, minimum=0)
 
 # Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 # Training: rollouts on this machine (0) or on that many `-Q simulation` workers elsewhere.
 RACECRAFT_REMOTE_ROLLOUT_SLOTS = envint("RACECRAFT_REMOTE_ROLLOUT_SLOTS", 0, minimum=0)
 RACECRAFT_MAX_MODELS_PER_USER = envint("RACECRAFT_MAX_MODELS_PER_USER", 50, minimum=1)
 RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = envint("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER", 2, minimum=1)
+# A job whose worker died is queued again (training resumes from its last checkpoint) until
+# it has been claimed this many times; then it fails.
+RACECRAFT_JOB_MAX_ATTEMPTS = envint("RACECRAFT_JOB_MAX_ATTEMPTS", 3, minimum=1)
 RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks")))
 
 LOGGING = {

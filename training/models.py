@@ -123,6 +123,8 @@ class Job(models.Model):
     error = models.TextField(blank=True)
     task_id = models.CharField(max_length=64, blank=True)
     worker = models.CharField(max_length=255, blank=True)
+    attempts = models.PositiveSmallIntegerField(default=0)
+    """How many times a worker claimed the job (a job whose worker died is queued again)."""
 
     class Meta:
         abstract = True
@@ -149,6 +151,8 @@ class TrainingJob(Job):
     best_iteration = models.PositiveIntegerField(null=True, blank=True)
     best_eval_progress = models.FloatField(default=0.0)
     stopped_by = models.CharField(max_length=16, blank=True)
+    resumed_from = models.CharField(max_length=500, blank=True)
+    """What the job's network started from, in words (a checkpoint, a parent, a fresh net)."""
 
     @property
     def remaining_seconds(self) -> float:

@@ -40,6 +40,11 @@ class StoreError(Exception):
     """Any failure of the object store (bad key, unreachable server, refused request...)."""
 
 
+class StoreUnavailable(StoreError):
+    """A failure that may pass: the server is unreachable, timed out or answered 5xx. Worth
+    retrying (:class:`RetryingStore` does); a user is told to try again."""
+
+
 class ObjectNotFound(StoreError):
     """The key holds no object; ``key`` names it."""
 
@@ -344,8 +349,12 @@ class MinioStore(ObjectStore):
         except S3Error as exc:
             if exc.code in ("NoSuchKey", "NoSuchObject", "ResourceNotFound"):
                 raise ObjectNotFound(key) from exc
-            raise StoreError(f"cannot {action} {key!r}: {exc.code}: {exc.message}") from exc
-        except (MinioException, HTTPError, OSError, ValueError) as exc:
+            kind = StoreUnavailable if exc.code in _TRANSIENT_S3_CODES else StoreError
+            raise kind(f"cannot {action} {key!r}: {exc.code}: {exc.message}") from exc
+        except (MinioException, HTTPError, OSError) as exc:
+            # Unreachable, timed out, reset, or a 5xx without an S3 error body.
+            raise StoreUnavailable(f"cannot {action} {key!r} at {self!r}: {exc}") from exc
+        except ValueError as exc:
             raise StoreError(f"cannot {action} {key!r} at {self!r}: {exc}") from exc
 
     def put_bytes(self, key: str, data: bytes, content_type: str = OCTET_STREAM) -> None:
@@ -411,6 +420,83 @@ class MinioStore(ObjectStore):
                 if failures:
                     raise StoreError(f"cannot delete {failures[0].name!r}: {failures[0].message}")
         return len(keys)
+
+
+_TRANSIENT_S3_CODES = frozenset(
+    {"InternalError", "ServiceUnavailable", "SlowDown", "RequestTimeout", "RequestTimeTooSkewed",
+     "XMinioServerNotInitialized", "XMinioStorageFull"}
+)  # fmt: skip
+
+
+class RetryingStore(ObjectStore):
+    """Another store, with every call retried on :class:`StoreUnavailable` (exponential
+    backoff from ``first_wait_s`` up to ``max_wait_s`` between tries) until ``retry_s()``
+    seconds have passed since the first try; then the last error is raised. Other errors
+    (missing keys, bad keys, a full disk) are raised at once. ``retry_s`` is a callable so the
+    patience can differ by process: a web request gives up in seconds, a training job that ran
+    for hours waits out a store outage of minutes (training/store.py sets it)."""
+
+    def __init__(
+        self,
+        inner: ObjectStore,
+        retry_s: Any = 5.0,
+        *,
+        first_wait_s: float = 0.2,
+        max_wait_s: float = 5.0,
+        sleep: Any = None,
+        clock: Any = None,
+    ) -> None:
+        import time
+
+        self.inner = inner
+        self._retry_s = retry_s if callable(retry_s) else (lambda: float(retry_s))
+        self._first_wait_s = first_wait_s
+        self._max_wait_s = max_wait_s
+        self._sleep = sleep or time.sleep
+        self._clock = clock or time.monotonic
+
+    def __repr__(self) -> str:
+        return repr(self.inner)
+
+    def _call(self, method: str, *args: Any, **kwargs: Any) -> Any:
+        deadline = self._clock() + max(0.0, float(self._retry_s()))
+        wait = self._first_wait_s
+        while True:
+            try:
+                return getattr(self.inner, method)(*args, **kwargs)
+            except StoreUnavailable:
+                left = deadline - self._clock()
+                if left <= 0:
+                    raise
+                self._sleep(min(wait, left))
+                wait = min(wait * 2, self._max_wait_s)
+
+    def put_bytes(self, key: str, data: bytes, content_type: str = OCTET_STREAM) -> None:
+        self._call("put_bytes", key, data, content_type)
+
+    def get_bytes(self, key: str) -> bytes:
+        return self._call("get_bytes", key)
+
+    def put_file(self, key: str, path: str | os.PathLike, content_type: str = OCTET_STREAM) -> None:
+        self._call("put_file", key, path, content_type)
+
+    def get_file(self, key: str, path: str | os.PathLike) -> None:
+        self._call("get_file", key, path)
+
+    def exists(self, key: str) -> bool:
+        return self._call("exists", key)
+
+    def size(self, key: str) -> int:
+        return self._call("size", key)
+
+    def list(self, prefix: str = "") -> list[str]:
+        return self._call("list", prefix)
+
+    def delete(self, key: str) -> None:
+        self._call("delete", key)
+
+    def delete_prefix(self, prefix: str) -> int:
+        return self._call("delete_prefix", prefix)
 
 
 def check_bucket_name(bucket: str) -> str:

@@ -1,13 +1,30 @@
-"""The object store configured in Django settings (MinIO, or a local folder by default)."""
+"""The object store configured in Django settings (MinIO, or a local folder by default),
+retried on transient errors: for ``RACECRAFT_STORE_RETRY_S`` seconds in the web server (a
+request then answers "storage unavailable, try again"), for ``RACECRAFT_STORE_WORKER_RETRY_S``
+in Celery workers (:func:`use_worker_retries`), so a checkpoint written after hours of training
+outlives a store outage."""
 
 from __future__ import annotations
 
 from django.conf import settings
 
 from training.interchange.layout import ModelKeys
-from training.storage import ObjectStore, store_from_settings
+from training.storage import ObjectStore, RetryingStore, store_from_settings
 
 _cache: dict[tuple, ObjectStore] = {}
+_patience = {"worker": False}
+
+
+def use_worker_retries(enabled: bool = True) -> None:
+    """This process is a worker: retry store calls for ``RACECRAFT_STORE_WORKER_RETRY_S``."""
+    _patience["worker"] = enabled
+
+
+def retry_seconds() -> float:
+    """How long this process retries a store call that failed transiently."""
+    if _patience["worker"]:
+        return float(getattr(settings, "RACECRAFT_STORE_WORKER_RETRY_S", 120.0))
+    return float(getattr(settings, "RACECRAFT_STORE_RETRY_S", 3.0))
 
 
 def get_store() -> ObjectStore:
@@ -23,7 +40,7 @@ def get_store() -> ObjectStore:
     key = tuple(sorted(config.items()))
     store = _cache.get(key)
     if store is None:
-        store = store_from_settings(config)
+        store = RetryingStore(store_from_settings(config), retry_s=retry_seconds)
         _cache[key] = store
     return store
 

@@ -1,9 +1,13 @@
 """Celery tasks: thin interfaces that take ids and call the worker and the services.
 
 Queues by name (console/celery.py): ``train_*`` → training, ``evaluate_*`` → evaluation,
-``simulate_*`` → simulation. Services queue these by name (:mod:`training.dispatch`). Jobs
-are claimed with a compare-and-set (a retried or duplicated task finds the job taken and
-skips), and a worker that starts fails the jobs its previous life left running.
+``simulate_*`` → simulation. Services queue these by name (:mod:`training.dispatch`).
+
+Tasks are acknowledged late and given back to the broker when their worker process dies
+(``acks_late`` + ``reject_on_worker_lost``): the job's claim is a compare-and-set, so a
+redelivered or duplicated task skips a job another worker holds and takes over one whose
+worker process is dead (the training resumes from its last checkpoint). A worker that starts
+queues again the jobs its previous life left running. Time limits: console/celery.py.
 """
 
 from __future__ import annotations
@@ -11,39 +15,51 @@ from __future__ import annotations
 import socket
 
 from celery import shared_task
-from celery.signals import worker_ready
+from celery.signals import worker_init, worker_process_init, worker_ready
 from django.db import close_old_connections
 
-from training import dispatch, services
+from training import dispatch, services, store
 from training.rollout.remote import serve_rollout
 from training.worker.evaluation import run_evaluation_job
 from training.worker.training import run_training_job
 
+_JOB_TASK = {"bind": True, "acks_late": True, "reject_on_worker_lost": True}
 
-@shared_task(bind=True, name=dispatch.TRAIN_MODEL, acks_late=False)
+
+@shared_task(name=dispatch.TRAIN_MODEL, **_JOB_TASK)
 def train_model(self, job_id: int) -> str:
     return run_training_job(job_id, worker=self.request.hostname or "")
 
 
-@shared_task(bind=True, name=dispatch.EVALUATE_MODEL, acks_late=False)
+@shared_task(name=dispatch.EVALUATE_MODEL, **_JOB_TASK)
 def evaluate_model(self, evaluation_id: int) -> str:
     return run_evaluation_job(evaluation_id, worker=self.request.hostname or "")
 
 
 @shared_task(name=dispatch.SIMULATE_ROLLOUT, acks_late=False)
 def simulate_rollout(**kwargs) -> str:
-    """A rollout worker for a trainer on another machine (queue ``simulation``)."""
+    """A rollout worker for a trainer on another machine (queue ``simulation``). Acknowledged
+    early: a lost rollout worker is the trainer's error to report, never a task to replay."""
     return serve_rollout(**kwargs)
 
 
-@shared_task(name="training.tasks.reap_orphans")
+@shared_task(name="training.tasks.reap_orphans", acks_late=True)
 def reap_orphans() -> int:
     return services.jobs_reap_orphans()
 
 
+@worker_init.connect
+@worker_process_init.connect
+def _patient_store(**kwargs) -> None:
+    """Workers retry the object store for long (a checkpoint outlives a store outage); the
+    web server gives up quickly and says so."""
+    store.use_worker_retries()
+
+
 @worker_ready.connect
-def _fail_jobs_of_my_previous_life(sender=None, **kwargs) -> None:
-    """Jobs this host was running when its worker died can never finish: fail them now."""
+def _requeue_jobs_of_my_previous_life(sender=None, **kwargs) -> None:
+    """Jobs this node was running when its worker died can never finish there: queue them
+    again (training resumes from its last checkpoint)."""
     close_old_connections()
     name = getattr(sender, "hostname", None) or socket.gethostname()
-    services.jobs_fail_for_worker(worker=str(name)[:255])
+    services.jobs_requeue_for_worker(worker=str(name)[:255])

@@ -58,6 +58,9 @@ class TrainingConfig:
     eval_laps: int = 1
     eval_from_start_line: bool = False
     initial_checkpoint: bytes | None = None
+    best_score: float | None = None
+    """The best evaluation progress so far (a resumed model's): an iteration is "best", and
+    replaces the best checkpoint, only when it does better. None: the first one is best."""
     torch_threads: int = 2
 
 
@@ -288,6 +291,8 @@ class TrainingLoop:
 
     def run(self) -> TrainingSummary:
         best_progress, best_iteration = -1.0, None
+        if self.config.best_score is not None:
+            best_progress = float(self.config.best_score)
         iteration = 0
         total_steps = 0
         try:

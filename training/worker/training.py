@@ -49,7 +49,11 @@ class JobHooks(TrainingHooks):
         self.frames = live.FramePublisher(self.group)
         self.should_stop = StopFlag(job)
         self._episodes: list[dict] = []
-        self._episode_count = 0
+        # A resumed job numbers on from the iterations and episodes it already recorded.
+        self._iteration_offset = job.iterations
+        self._episode_count = EpisodeMetric.objects.filter(job=job).count()
+        last = IterationMetric.objects.filter(job=job).order_by("-iteration").first()
+        self._elapsed_offset = last.elapsed_s if last else 0.0
 
     # ---- polled during rollouts
     def frames_wanted(self) -> bool:
@@ -63,7 +67,7 @@ class JobHooks(TrainingHooks):
 
     # ---- once per iteration
     def on_iteration(self, result: IterationResult, checkpoint: bytes, rows: list[list]) -> None:
-        n = result.iteration
+        n = result.iteration + self._iteration_offset
         store, keys = self.store, self.keys
         store.put_bytes(keys.last, checkpoint)
         if result.best:
@@ -85,7 +89,8 @@ class JobHooks(TrainingHooks):
                 train_progress=result.train_progress, eval_progress=result.eval_progress,
                 eval_reward=float(sum(ev.rewards) / max(1, len(ev.rewards))),
                 eval_laps_completed=sum(len(t) for t in ev.lap_times),
-                is_best=result.best, elapsed_s=result.elapsed_s, rollout_s=result.rollout_s,
+                is_best=result.best, elapsed_s=result.elapsed_s + self._elapsed_offset,
+                rollout_s=result.rollout_s,
                 update_s=result.update_s, eval_s=result.eval_s,
             ).as_point()  # fmt: skip
             new_rows = []
@@ -140,12 +145,42 @@ def _episode_row(job: TrainingJob, iteration: int, e: dict, number: int) -> Epis
     )
 
 
-def _initial_checkpoint(model: RacingModel) -> bytes | None:
-    """The checkpoint a cloned or imported model starts from (None: a fresh network)."""
+def _initial_checkpoint(
+    job: TrainingJob, model: RacingModel
+) -> tuple[bytes | None, float | None, str]:
+    """What the job starts from: ``(checkpoint, best score so far, the same in words)``.
+
+    A model trained before (a retried or restarted job, or a failed model trained again)
+    resumes from its last checkpoint and keeps its best one unless an iteration beats the best
+    evaluation progress so far; a clone or an imported model starts from the checkpoint it was
+    given; a new model from a fresh network."""
+    store, keys = get_store(), keys_for(model.pk)
+    trained = TrainingJob.objects.filter(model=model, iterations__gt=0)
+    last_job = trained.order_by("-started_at", "-pk").first()
+    if model.has_checkpoint and last_job is not None:
+        try:
+            checkpoint = store.get_bytes(keys.last)
+        except ObjectNotFound:
+            checkpoint = None
+        if checkpoint is not None:
+            best_job = trained.filter(best_iteration__isnull=False)
+            best_job = best_job.order_by("-best_eval_progress", "-pk").first()
+            where = "its own" if last_job.pk == job.pk else f"job #{last_job.pk}'s"
+            text = f"resumed from {where} last checkpoint (iteration {last_job.iterations})"
+            if best_job is None:
+                return checkpoint, None, text
+            text += (
+                f"; best so far {best_job.best_eval_progress:.1f}% evaluation progress (job "
+                f"#{best_job.pk}, iteration {best_job.best_iteration}), kept unless beaten"
+            )
+            return checkpoint, best_job.best_eval_progress, text
     try:
-        return get_store().get_bytes(keys_for(model.pk).checkpoint("initial"))
+        checkpoint = store.get_bytes(keys.checkpoint("initial"))
     except ObjectNotFound:
-        return None
+        return None, None, "started from a new network"
+    if model.parent_id is not None:
+        return checkpoint, None, f"started from the checkpoint of model #{model.parent_id}"
+    return checkpoint, None, "started from the imported model's checkpoint"
 
 
 def run_training_job(job_id: int, worker: str = "") -> str:
@@ -158,15 +193,20 @@ def run_training_job(job_id: int, worker: str = "") -> str:
     model = job.model
     hooks = JobHooks(job)
     try:
+        checkpoint, best_score, started_from = _initial_checkpoint(job, model)
+        services.job_resumed_from(job=job, description=started_from)
+        # A resumed job trains for the time it has left.
+        max_minutes = max(0.5, job.max_minutes - hooks._elapsed_offset / 60)
         config = TrainingConfig(
             spec=env_spec(model),
             algorithm=model.algorithm,
             network=model.neural_network,
             hyperparameters=parse_hyperparameters(model.hyperparameters, model.algorithm),
-            max_minutes=job.max_minutes,
+            max_minutes=max_minutes,
             reward_source=model.reward_function,
             seed=model.seed,
-            initial_checkpoint=_initial_checkpoint(model),
+            initial_checkpoint=checkpoint,
+            best_score=best_score,
             rollouts=rollout_backend(),
         )
         services.job_begin(job=job)

@@ -179,28 +179,32 @@ def test_orphaned_jobs_are_noticed(alice):
     model.has_checkpoint = True
     model.save()
     old = timezone.now() - timezone.timedelta(minutes=30)
+    # A job whose worker died is queued again (it resumes from its last checkpoint)...
     dead = TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS,
-                                      heartbeat_at=old)  # fmt: skip
+                                      heartbeat_at=old, attempts=1, worker="w1@host#1")  # fmt: skip
+    # ... until it has been claimed RACECRAFT_JOB_MAX_ATTEMPTS times: then it fails.
+    gave_up = TrainingJob.objects.create(model=model, max_minutes=5, attempts=3,
+                                         status=JobStatus.IN_PROGRESS,
+                                         heartbeat_at=old)  # fmt: skip
     alive = TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS,
                                        heartbeat_at=timezone.now())  # fmt: skip
-    assert services.jobs_reap_orphans(stale_after_s=300) == 1
-    dead.refresh_from_db()
-    alive.refresh_from_db()
-    assert dead.status == JobStatus.FAILED and "stopped unexpectedly" in dead.error
+    assert services.jobs_reap_orphans(stale_after_s=300) == 2
+    for job in (dead, gave_up, alive):
+        job.refresh_from_db()
+    assert dead.status == JobStatus.QUEUED and dead.worker == ""
+    assert gave_up.status == JobStatus.FAILED and "stopped unexpectedly 3 times" in gave_up.error
     assert alive.status == JobStatus.IN_PROGRESS
-    model.refresh_from_db()
-    assert model.status == RacingModel.Status.READY  # its checkpoint is still usable
 
 
-def test_a_restarted_worker_fails_its_old_jobs(alice):
+def test_a_restarted_worker_queues_its_old_jobs_again(alice):
     model = create(alice)
-    running = {"track_id": "racecraft_oval", "status": JobStatus.IN_PROGRESS}
-    job = EvaluationJob.objects.create(model=model, worker="w1@host", **running)
-    other = EvaluationJob.objects.create(model=model, worker="w2@host", **running)
-    assert services.jobs_fail_for_worker(worker="w1@host") == 1
+    running = {"track_id": "racecraft_oval", "status": JobStatus.IN_PROGRESS, "attempts": 1}
+    job = EvaluationJob.objects.create(model=model, worker="w1@host#123", **running)
+    other = EvaluationJob.objects.create(model=model, worker="w2@host#123", **running)
+    assert services.jobs_requeue_for_worker(worker="w1@host") == 1
     job.refresh_from_db()
     other.refresh_from_db()
-    assert job.status == JobStatus.FAILED and other.status == JobStatus.IN_PROGRESS
+    assert job.status == JobStatus.QUEUED and other.status == JobStatus.IN_PROGRESS
 
 
 def test_evaluation_needs_a_checkpoint_and_valid_laps(alice):
