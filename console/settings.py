@@ -53,6 +53,8 @@ MIDDLEWARE = [
     "django.contrib.auth.middleware.AuthenticationMiddleware",
     "django.contrib.messages.middleware.MessageMiddleware",
     "django.middleware.clickjacking.XFrameOptionsMiddleware",
+    # An unreachable object store or database: a 503 "try again", never a 500.
+    "console.middleware.UnavailableMiddleware",
 ]
 
 ROOT_URLCONF = "console.urls"

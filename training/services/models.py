@@ -1,7 +1,10 @@
 """Models: create, clone, import, delete; their files in the store.
 
 Every function is keyword-only and raises :class:`ServiceError` with a message a user can act
-on; a model whose files could not be written is removed again (no half-made rows).
+on. Creating, cloning and importing are all or nothing (:func:`_all_or_nothing`): the rows are
+written in one transaction and the files under the new model's folder; if the store fails
+(after its retries) the transaction is rolled back, the folder removed, and the user told that
+storage is unavailable and to try again - never a half-made model, never a 500.
 """
 
 from __future__ import annotations
@@ -9,6 +12,10 @@ from __future__ import annotations
 import json
 import logging
 import random
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from django.db import transaction
 
 from training.errors import ServiceError
 from training.interchange.archive import ArchiveError, import_virtual_model
@@ -22,10 +29,34 @@ from training.services.checks import (
     track_catalog,
 )
 from training.services.jobs import model_has_active_jobs, owned
-from training.storage import StoreError
+from training.storage import StoreError, StoreUnavailable
 from training.store import get_store, keys_for
 
 log = logging.getLogger(__name__)
+STORE_UNAVAILABLE = (
+    "the model store is unavailable right now, so nothing was saved; try again in a minute"
+)
+
+
+@contextmanager
+def _all_or_nothing() -> Iterator[list[int]]:
+    """One transaction for the rows; the caller lists the ids of the models it creates, whose
+    stored folders are removed if anything fails. A store failure becomes a ServiceError."""
+    created: list[int] = []
+    try:
+        with transaction.atomic():
+            yield created
+    except BaseException as exc:
+        for model_id in created:
+            try:
+                get_store().delete_prefix(keys_for(model_id).prefix)
+            except StoreError:
+                log.warning("could not clean up the store of model %s", model_id)
+        if isinstance(exc, StoreUnavailable):
+            raise ServiceError(STORE_UNAVAILABLE) from None
+        if isinstance(exc, StoreError):
+            raise ServiceError(f"the model's files could not be written: {exc}") from None
+        raise
 
 
 def _store_model_files(model: RacingModel) -> None:
@@ -80,7 +111,15 @@ def model_create(
     )  # fmt: skip
     if validate_reward:
         check_reward(reward_function, track_id, direction)
-    model = RacingModel.objects.create(
+    with _all_or_nothing() as created:
+        model = _create_row(owner, name, description, spec, reward_function, seed)
+        created.append(model.pk)
+        _store_model_files(model)
+    return model
+
+
+def _create_row(owner, name, description, spec, reward_function, seed) -> RacingModel:
+    return RacingModel.objects.create(
         owner=owner,
         name=name,
         description=description,
@@ -98,8 +137,6 @@ def model_create(
         seed=seed if seed is not None else random.randrange(2**31),
         status=RacingModel.Status.READY,
     )
-    _store_model_files(model)
-    return model
 
 
 def model_clone(
@@ -133,45 +170,43 @@ def model_clone(
         )
     if model.action_space_type == "continuous" and not isinstance(new_actions, dict):
         raise ServiceError("a clone keeps a continuous action space", field="action_space")
-    clone = model_create(
-        owner=owner,
-        name=name,
-        description=description,
-        track_id=track_id or model.track_id,
-        direction=direction or model.direction,
-        race_type=model.race_type,
-        sensors=list(model.sensors),
-        action_space=new_actions,
-        algorithm=model.algorithm,
-        neural_network=model.neural_network,
-        hyperparameters=hyperparameters if hyperparameters is not None else model.hyperparameters,
-        reward_function=reward_function if reward_function is not None else model.reward_function,
-        max_minutes=max_minutes or model.max_minutes,
-        validate_reward=True,
-    )
-    store = get_store()
-    src, dst = keys_for(model.pk), keys_for(clone.pk)
-    try:
-        data = store.get_bytes(src.best if checkpoint == "best" else src.last)
+    with _all_or_nothing() as created:
+        clone = model_create(
+            owner=owner,
+            name=name,
+            description=description,
+            track_id=track_id or model.track_id,
+            direction=direction or model.direction,
+            race_type=model.race_type,
+            sensors=list(model.sensors),
+            action_space=new_actions,
+            algorithm=model.algorithm,
+            neural_network=model.neural_network,
+            hyperparameters=(
+                hyperparameters if hyperparameters is not None else model.hyperparameters
+            ),
+            reward_function=(
+                reward_function if reward_function is not None else model.reward_function
+            ),
+            max_minutes=max_minutes or model.max_minutes,
+            validate_reward=True,
+        )
+        created.append(clone.pk)
+        store = get_store()
+        src, dst = keys_for(model.pk), keys_for(clone.pk)
+        try:
+            data = store.get_bytes(src.best if checkpoint == "best" else src.last)
+        except StoreUnavailable:
+            raise
+        except StoreError as exc:
+            raise ServiceError(f"the parent's checkpoint could not be copied: {exc}") from None
         store.put_bytes(dst.checkpoint("initial"), data)
         store.put_bytes(dst.best, data)
         store.put_bytes(dst.last, data)
-    except StoreError as exc:
-        _delete_quietly(clone)
-        raise ServiceError(f"the parent's checkpoint could not be copied: {exc}") from None
-    clone.parent = model
-    clone.has_checkpoint = True
-    clone.save(update_fields=["parent", "has_checkpoint", "updated_at"])
+        clone.parent = model
+        clone.has_checkpoint = True
+        clone.save(update_fields=["parent", "has_checkpoint", "updated_at"])
     return clone
-
-
-def _delete_quietly(model: RacingModel) -> None:
-    """Undo a model whose files could not be completed."""
-    try:
-        get_store().delete_prefix(keys_for(model.pk).prefix)
-    except StoreError:
-        log.warning("could not clean up the store of model %s", model.pk)
-    model.delete()
 
 
 def model_import(*, owner, name: str, upload, description: str = "") -> RacingModel:
@@ -183,26 +218,28 @@ def model_import(*, owner, name: str, upload, description: str = "") -> RacingMo
     except ArchiveError as exc:
         raise ServiceError(str(exc), field="archive") from None
     meta = imported.metadata
-    model = model_create(
-        owner=owner,
-        name=name,
-        description=description,
-        track_id=_default_track(),
-        sensors=list(meta.sensor),
-        action_space=meta.actions.to_metadata(),
-        algorithm=meta.training_algorithm,
-        neural_network=meta.neural_network,
-        hyperparameters=imported.hyperparameters.to_json(),
-        reward_function=imported.reward_function,
-        max_minutes=10,
-        validate_reward=False,
-    )
-    store, keys = get_store(), keys_for(model.pk)
-    for key in (keys.best, keys.last, keys.checkpoint("initial")):
-        store.put_bytes(key, imported.checkpoint_bytes)
-    model.imported = True
-    model.has_checkpoint = True
-    model.save(update_fields=["imported", "has_checkpoint", "updated_at"])
+    with _all_or_nothing() as created:
+        model = model_create(
+            owner=owner,
+            name=name,
+            description=description,
+            track_id=_default_track(),
+            sensors=list(meta.sensor),
+            action_space=meta.actions.to_metadata(),
+            algorithm=meta.training_algorithm,
+            neural_network=meta.neural_network,
+            hyperparameters=imported.hyperparameters.to_json(),
+            reward_function=imported.reward_function,
+            max_minutes=10,
+            validate_reward=False,
+        )
+        created.append(model.pk)
+        store, keys = get_store(), keys_for(model.pk)
+        for key in (keys.best, keys.last, keys.checkpoint("initial")):
+            store.put_bytes(key, imported.checkpoint_bytes)
+        model.imported = True
+        model.has_checkpoint = True
+        model.save(update_fields=["imported", "has_checkpoint", "updated_at"])
     return model
 
 
@@ -224,5 +261,9 @@ def model_delete(*, model: RacingModel, user) -> None:
         model.status = RacingModel.Status.ERROR
         model.error = f"deleting the stored files failed: {exc}"
         model.save(update_fields=["status", "error", "updated_at"])
+        if isinstance(exc, StoreUnavailable):
+            raise ServiceError(
+                "the model store is unavailable right now; try deleting again in a minute"
+            ) from None
         raise ServiceError(f"the model's files could not be deleted: {exc}") from None
     model.delete()
