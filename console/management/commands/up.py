@@ -17,8 +17,10 @@ from console.launcher import ConsoleOptions, LaunchError, console_run
 
 class Command(BaseCommand):
     help = (
-        "Build the browser assets, migrate the database, then run the web server and a "
-        "Celery worker (and an embedded Redis when REDIS_URL is unset) until Ctrl-C."
+        "Build the browser assets, migrate the database, then run the web server, Celery beat "
+        "and one Celery worker per kind of work (quick tasks, training, evaluation, and "
+        "simulation with RACECRAFT_REMOTE_ROLLOUT_SLOTS), with an embedded Redis when "
+        "REDIS_URL is unset, until Ctrl-C."
     )
 
     def add_arguments(self, parser: ArgumentParser) -> None:
@@ -28,10 +30,24 @@ class Command(BaseCommand):
             "--concurrency",
             type=int,
             default=settings.CELERY_WORKER_CONCURRENCY,
-            help="worker processes (default: CELERY_WORKER_CONCURRENCY, 2)",
+            help="training worker processes (default: CELERY_WORKER_CONCURRENCY, 2)",
+        )
+        parser.add_argument(
+            "--evaluation-concurrency",
+            type=int,
+            default=settings.RACECRAFT_EVALUATION_CONCURRENCY,
+            help="evaluation worker processes (default: RACECRAFT_EVALUATION_CONCURRENCY, 1)",
         )
 
-    def handle(self, *args: Any, host: str, port: int, concurrency: int, **options: Any) -> None:
+    def handle(
+        self,
+        *args: Any,
+        host: str,
+        port: int,
+        concurrency: int,
+        evaluation_concurrency: int,
+        **options: Any,
+    ) -> None:
         try:
             call_command("build_assets", verbosity=options["verbosity"])
         except CommandError as exc:
@@ -44,6 +60,10 @@ class Command(BaseCommand):
             host=host,
             port=port,
             concurrency=concurrency,
+            evaluation_concurrency=evaluation_concurrency,
+            quick_concurrency=settings.RACECRAFT_QUICK_CONCURRENCY,
+            simulation_slots=settings.RACECRAFT_REMOTE_ROLLOUT_SLOTS,
+            job_nice=settings.RACECRAFT_WORKER_NICE,
             redis_url=os.environ.get("REDIS_URL") or None,
             embedded_socket=settings.EMBEDDED_REDIS_SOCKET,
             var_dir=settings.VAR_DIR,
