@@ -7,6 +7,7 @@
 /models/<id>/download/<car|virtual|logs>/       /evaluations/<id>/video.mp4
 /jobs/training/<id>/stop/  /evaluations/<id>/stop/                           stop a job
 /api/reward/validate       the reward function's Validate button (JSON)
+/api/openapi.json          the JSON API's OpenAPI description (console/openapi.json)
 /league/                   the league (leaderboard app)
 """
 
@@ -69,6 +70,7 @@ urlpatterns = [
         name="evaluation-video",
     ),
     path("api/reward/validate", api.reward_validate, name="reward-validate"),
+    path("api/openapi.json", api.openapi_schema, name="openapi-schema"),
     path("league/", include("leaderboard.urls")),
     path("admin/", admin.site.urls),
 ]

@@ -3,15 +3,29 @@
 from __future__ import annotations
 
 import json
+from functools import cache
+from pathlib import Path
 
 from django.contrib.auth.decorators import login_required
-from django.http import HttpRequest, JsonResponse
-from django.views.decorators.http import require_POST
+from django.http import HttpRequest, HttpResponse, JsonResponse
+from django.views.decorators.http import require_POST, require_safe
 
 from training import services
 from training.sandbox import MAX_SOURCE_CHARS
 
 MAX_BODY_BYTES = MAX_SOURCE_CHARS * 4 + 4096
+OPENAPI_PATH = Path(__file__).resolve().parent.parent / "openapi.json"
+
+
+@cache
+def _openapi_text() -> str:
+    return OPENAPI_PATH.read_text(encoding="utf-8")
+
+
+@require_safe
+def openapi_schema(request: HttpRequest) -> HttpResponse:
+    """The OpenAPI 3 description of the JSON API (console/openapi.json)."""
+    return HttpResponse(_openapi_text(), content_type="application/json")
 
 
 def _error(message: str, status: int = 400, field: str | None = None) -> JsonResponse:

@@ -232,7 +232,8 @@ def test_manage_py_up_stops_everything_when_the_worker_dies(short_dir: Path) -> 
             up.communicate()
     text = output.decode(errors="replace")
     assert up.returncode == 1, text
-    name = next(w for w in ("worker-quick", "worker-training", "worker-evaluation", "beat") if w in text)
+    names = ("worker-quick", "worker-training", "worker-evaluation", "beat")
+    name = next(w for w in names if f"{w} was killed" in text)
     assert f"{name} was killed by SIGKILL; stopping the other processes" in text
     assert f"racecraft stopped: {name} was killed by SIGKILL" in text
     deadline = time.monotonic() + 15

@@ -27,7 +27,7 @@ from training import services
 from training.models import IterationMetric, JobStatus, RacingModel, TrainingJob
 from training.store import get_store, keys_for
 
-pytestmark = [pytest.mark.django_db(transaction=True), pytest.mark.slow]
+pytestmark = [pytest.mark.django_db(transaction=True), pytest.mark.slow, pytest.mark.timeout(2400)]
 TRAIN_DEADLINE_S = 600
 
 

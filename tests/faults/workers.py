@@ -24,7 +24,7 @@ def reward_function(params):
         return 1e-3
     return 1.0 - params["distance_from_center"] / params["track_width"]
 """
-SMALL = {"num_episodes_between_training": 4, "num_epochs": 2, "batch_size": 32}
+SMALL = {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}
 
 
 def wait_for(predicate: Callable[[], object], timeout: float, what: str,
