@@ -89,6 +89,14 @@ def test_sigkill_of_the_worker_process_mid_training_resumes_the_job(store_dir, r
     assert model.status == RacingModel.Status.READY
 
 
+def _reset_broker_pools() -> None:
+    """Forget connections to the previous broker (the next send connects to the new URL)."""
+    if celery_app._pool is not None:
+        celery_app._pool.force_close_all()
+        celery_app._pool = None
+    celery_app.amqp._producer_pool = None
+
+
 @pytest.fixture
 def own_redis():
     """A Redis of this test's own (persistent, on a unix socket), that it may restart; the
@@ -112,7 +120,7 @@ def own_redis():
         broker_transport_options={},
         result_backend_transport_options={},
     )
-    celery_app.pool.force_close_all()
+    _reset_broker_pools()
     channel_layers.backends.clear()
 
     def restart() -> None:
@@ -130,7 +138,7 @@ def own_redis():
         for n, v in saved.items():
             setattr(django_settings, n, v)
         celery_app.conf.update(**saved_conf)
-        celery_app.pool.force_close_all()
+        _reset_broker_pools()
         channel_layers.backends.clear()
         sup.stop_all()
 
