@@ -6,10 +6,11 @@ loopback, with a fresh SQLite database and store in a temporary folder.
     .venv/bin/python bench/bench_load.py [--users 50] [--seconds 40] [--think 1.0,3.0]
 
 Each user signs in (a session made directly in the database), then loops: a page (home, model
-list, a model's page, the job's page, the track gallery), sometimes the Validate button
-(POST /api/reward/validate, which runs the reward in the sandbox), sometimes Train then Stop on
-a model of its own (its job stays queued behind the 2 trainings and is canceled), with a
-random think time between requests. Page time is the time to the last byte of a GET page.
+list, a model's page - where its job shows - twice as often, the track gallery), sometimes
+(--validate-share, 3%) the Validate button (POST /api/reward/validate, which runs the reward
+in a sandboxed interpreter), and while the 2 jobs train, sometimes (4%) Train then Stop on a
+model of its own (its job stays queued behind the 2 trainings and is canceled), with a random
+think time between requests. Page time is the time to the last byte of a GET page.
 Prints a table per phase and, last, ``p95_ms=`` (pages while training), ``errors=`` (any
 5xx, connection error or unexpected status, both phases) and the ratio to the idle baseline.
 Bounded in time: about 2 x --seconds plus start-up (the trainings are stopped at the end).
@@ -43,6 +44,8 @@ def reward_function(params):
 """
 ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
 PAGE_KINDS = ("home", "models", "model", "model", "tracks")
+args_validate_share = [0.03]
+"""Share of a user's actions that press Validate (set from --validate-share)."""
 
 
 def free_port() -> int:
@@ -64,12 +67,13 @@ class User(threading.Thread):
 
     def __init__(self, port: int, cookie: str, csrf: str, own_models: list[int],
                  watch: int, deadline: float, think: tuple[float, float],
-                 record, seed: int) -> None:  # fmt: skip
+                 record, seed: int, starts: bool) -> None:  # fmt: skip
         super().__init__(daemon=True)
         self.port, self.cookie, self.csrf = port, cookie, csrf
         self.own_models, self.watch = own_models, watch
         self.deadline, self.think, self.record = deadline, think, record
         self.rng = random.Random(seed)
+        self.starts = starts
         self.conn: http.client.HTTPConnection | None = None
 
     def request(self, kind: str, method: str, path: str, body: str | None = None,
@@ -112,13 +116,13 @@ class User(threading.Thread):
         model = self.watch
         while time.monotonic() < self.deadline:
             roll = self.rng.random()
-            if roll < 0.10:
+            if roll < args_validate_share[0]:
                 source = REWARD if self.rng.random() < 0.8 else "def reward_function(p):\n  retur"
                 body = urlencode(
                     {"source": source, "track": "racecraft_oval", "direction": "native"}
                 )
                 self.request("api:validate", "POST", "/api/reward/validate", body)
-            elif roll < 0.14 and self.own_models:
+            elif roll < args_validate_share[0] + 0.04 and self.own_models and self.starts:
                 mine = self.rng.choice(self.own_models)
                 self.request("post:train", "POST", f"/models/{mine}/train/", "")
                 self.request("page:model", "GET", f"/models/{mine}/")
@@ -193,11 +197,11 @@ def wait_http(port: int, proc: subprocess.Popen, timeout: float) -> None:
     raise SystemExit("the console did not answer")
 
 
-def run_phase(args, port: int, users: list[tuple], title: str) -> Recorder:
+def run_phase(args, port: int, users: list[tuple], title: str, starts: bool) -> Recorder:
     rec = Recorder()
     deadline = time.monotonic() + args.seconds
     think = tuple(float(x) for x in args.think.split(","))
-    threads = [User(port, cookie, csrf, own, watch, deadline, think, rec, seed=i)
+    threads = [User(port, cookie, csrf, own, watch, deadline, think, rec, seed=i, starts=starts)
                for i, (cookie, csrf, own, watch) in enumerate(users)]  # fmt: skip
     for i, t in enumerate(threads):
         t.start()
@@ -214,7 +218,14 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=40.0, help="per phase")
     parser.add_argument("--think", default="1.0,3.0", help="think time range, seconds")
     parser.add_argument("--trainings", type=int, default=2)
+    parser.add_argument(
+        "--validate-share",
+        type=float,
+        default=0.03,
+        help="share of actions that press Validate (a sandboxed run)",
+    )
     args = parser.parse_args()
+    args_validate_share[0] = args.validate_share
 
     var = Path(tempfile.mkdtemp(prefix="rc-bench-"))
     port = free_port()
@@ -241,7 +252,7 @@ def main() -> None:
         from training.models import JobStatus, TrainingJob
 
         User_ = get_user_model()
-        trainer = User_.objects.create_user("trainer", password="pw-trainer-123")
+        trainer = User_.objects.create_user("trainer")
         trained = []
         for i in range(args.trainings):
             trained.append(services.model_create(
@@ -253,7 +264,7 @@ def main() -> None:
         users = []
         csrf = "b" * 32
         for i in range(args.users):
-            user = User_.objects.create_user(f"user{i}", password=f"pw-user-{i}-123")
+            user = User_.objects.create_user(f"user{i}")  # no password: no hashing cost
             own = [services.model_create(owner=user, name=f"m{i}-{k}", track_id="racecraft_oval",
                                          action_space=ACTIONS, reward_function=REWARD,
                                          validate_reward=False).pk for k in range(2)]  # fmt: skip
@@ -268,7 +279,9 @@ def main() -> None:
         users = [(c, t, own, own[0]) for c, t, own, _ in users]
 
         sized = f"({args.users} users, {args.seconds:.0f} s)"
-        idle = run_phase(args, port, users, f"idle console {sized}")
+        # Users start (and stop) jobs only while the trainings hold every training process:
+        # on an idle console their jobs would start training and the baseline would not be idle.
+        idle = run_phase(args, port, users, f"idle console {sized}", starts=False)
         jobs = [services.training_start(model=m, user=trainer) for m in trained]
         deadline = time.monotonic() + 300
         while time.monotonic() < deadline:
@@ -280,7 +293,9 @@ def main() -> None:
         else:
             raise SystemExit(f"the trainings did not start: {states}")
         time.sleep(5)  # past the start-up: rollouts and updates running
-        busy = run_phase(args, port, users, f"while {args.trainings} jobs train {sized}")
+        busy = run_phase(
+            args, port, users, f"while {args.trainings} jobs train {sized}", starts=True
+        )
         iterations = list(TrainingJob.objects.filter(pk__in=[j.pk for j in jobs])
                           .values_list("iterations", flat=True))  # fmt: skip
         for job in jobs:

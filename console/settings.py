@@ -211,6 +211,9 @@ RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = envint("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER"
 # A job whose worker died is queued again (training resumes from its last checkpoint) until
 # it has been claimed this many times; then it fails.
 RACECRAFT_JOB_MAX_ATTEMPTS = envint("RACECRAFT_JOB_MAX_ATTEMPTS", 3, minimum=1)
+# Reward validations (each a sandboxed interpreter) running at once in one web process; more
+# wait up to 30 s, then get 503 "busy, try again".
+RACECRAFT_VALIDATE_CONCURRENCY = envint("RACECRAFT_VALIDATE_CONCURRENCY", 2, minimum=1)
 RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks")))
 
 LOGGING = {

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+import threading
 from functools import cache
 from pathlib import Path
 
+from django.conf import settings
 from django.contrib.auth.decorators import login_required
 from django.http import HttpRequest, HttpResponse, JsonResponse
 from django.views.decorators.http import require_POST, require_safe
@@ -15,6 +17,22 @@ from training.sandbox import MAX_SOURCE_CHARS
 
 MAX_BODY_BYTES = MAX_SOURCE_CHARS * 4 + 4096
 OPENAPI_PATH = Path(__file__).resolve().parent.parent / "openapi.json"
+VALIDATE_WAIT_S = 30.0
+"""How long a validation waits for a free slot before answering 503 "busy, try again"."""
+_validations: threading.BoundedSemaphore | None = None
+_validations_lock = threading.Lock()
+
+
+def _validation_slots() -> threading.BoundedSemaphore:
+    """At most ``RACECRAFT_VALIDATE_CONCURRENCY`` reward validations at once in this web
+    process: each starts a sandboxed interpreter (about a CPU-second), and a burst of them must
+    not starve the pages everyone else is loading."""
+    global _validations
+    with _validations_lock:
+        if _validations is None:
+            slots = int(getattr(settings, "RACECRAFT_VALIDATE_CONCURRENCY", 2))
+            _validations = threading.BoundedSemaphore(max(1, slots))
+        return _validations
 
 
 @cache
@@ -61,6 +79,11 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
         return _error("Choose a track to validate on.", field="track")
     if not isinstance(direction, str):
         return _error("'direction' must be native, ccw or cw.", field="direction")
+    slots = _validation_slots()
+    if not slots.acquire(timeout=VALIDATE_WAIT_S):
+        response = _error("The validator is busy; try again in a moment.", status=503)
+        response["Retry-After"] = "10"
+        return response
     try:
         result = services.check_reward(source, track, direction)
     except services.RewardRejected as exc:
@@ -68,4 +91,6 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
     except services.ServiceError as exc:
         field = {"track_id": "track", "reward_function": "source"}.get(exc.field or "", exc.field)
         return _error(exc.sentence, field=field)
+    finally:
+        slots.release()
     return JsonResponse({"ok": True, "errors": [], "rewards": result["rewards"]})

@@ -476,8 +476,12 @@ def jobs_reap_orphans(*, stale_after_s: float = 300.0, lost_task_grace_s: float 
             status__in=RUNNING_JOB_STATUSES, heartbeat_at__lt=stale
         ).select_related("model"):
             marked += _requeue(job, reason="its worker stopped sending heartbeats")
+        # Queued (or queued again, or sent again: heartbeat_at marks that) over a day ago.
         marked += _fail_each(
-            job_model.objects.filter(status=JobStatus.QUEUED, created_at__lt=forgotten_before),
+            job_model.objects.filter(status=JobStatus.QUEUED).filter(
+                Q(heartbeat_at__lt=forgotten_before)
+                | Q(heartbeat_at__isnull=True, created_at__lt=forgotten_before)
+            ),
             "no worker picked this job up within a day",
         )
         marked += _redispatch_lost(job_model, grace_s=lost_task_grace_s)
