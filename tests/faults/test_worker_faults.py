@@ -13,9 +13,11 @@ import time
 from pathlib import Path
 
 import pytest
+import redis
 from channels.layers import channel_layers
 from django.conf import settings as django_settings
 from django.contrib.auth import get_user_model
+from django.db import connection
 from moto.server import ThreadedMotoServer
 
 from console.celery import app as celery_app
@@ -95,6 +97,9 @@ def _reset_broker_pools() -> None:
         celery_app._pool.force_close_all()
         celery_app._pool = None
     celery_app.amqp._producer_pool = None
+    # The result backend is cached too (per thread, or once when thread-safe).
+    celery_app._local.__dict__.pop("backend", None)
+    celery_app._backend_cache = None
 
 
 @pytest.fixture
@@ -213,3 +218,59 @@ def test_the_store_down_for_30_s_mid_training_does_not_fail_the_job(store_dir, r
         assert get_store().exists(keys_for(model.pk).last)
     finally:
         server["s"].stop()
+
+
+def test_a_queued_job_whose_task_redis_lost_is_sent_again_and_runs(store_dir, own_redis):
+    """Redis restarted without its data while a job waited (no worker yet): the reaper sees
+    the job's task is gone, sends it again, and a worker then runs the job."""
+    url, _ = own_redis
+    alice = get_user_model().objects.create_user("alice", password="pw-alice-123")
+    log_path = store_dir.parent / "worker.log"
+    job = services.training_start(model=_model(alice, "lost", minutes=1), user=alice)
+    wait_for(lambda: _job(job.pk).task_id, 30, "the job's task")
+    client = redis.Redis.from_url(url)
+    client.flushall()  # a restart that kept nothing
+    client.close()
+    assert services.jobs_reap_orphans(lost_task_grace_s=0) == 1
+    env = {"REDIS_URL": url, "REDIS_PREFIX": "", "STORE_DIR": str(store_dir),
+           "RACECRAFT_TRACKS_DIR": str(django_settings.RACECRAFT_TRACKS_DIR)}  # fmt: skip
+    with celery_worker(log_path, env):
+        started = wait_for(lambda: (j := _job(job.pk)).status != JobStatus.QUEUED and j,
+                           TRAIN_DEADLINE_S, "the job to start", log_path)  # fmt: skip
+        assert started.status in (JobStatus.INITIALIZING, JobStatus.IN_PROGRESS)
+        final = _finish(job.pk, alice, log_path)
+    assert final.status == JobStatus.COMPLETED, final.error
+
+
+needs_postgres = pytest.mark.skipif(
+    connection.vendor != "postgresql", reason="drops connections with pg_terminate_backend"
+)
+
+
+@needs_postgres
+def test_database_connections_dropped_mid_training(store_dir, redis_env):
+    """Every database session of the worker is killed (a database restart) mid-training:
+    the worker reconnects and the job goes on, or fails with a clear message - never stuck."""
+    alice = get_user_model().objects.create_user("alice", password="pw-alice-123")
+    log_path = store_dir.parent / "worker.log"
+    env = {**redis_env, "STORE_DIR": str(store_dir),
+           "RACECRAFT_TRACKS_DIR": str(django_settings.RACECRAFT_TRACKS_DIR)}  # fmt: skip
+    with celery_worker(log_path, env):
+        job = services.training_start(model=_model(alice, "dbdrop"), user=alice)
+        wait_for(lambda: _job(job.pk).iterations >= 1, TRAIN_DEADLINE_S,
+                 "a first iteration", log_path)  # fmt: skip
+        with connection.cursor() as cursor:
+            cursor.execute(
+                "SELECT count(pg_terminate_backend(pid)) FROM pg_stat_activity "
+                "WHERE datname = current_database() AND pid <> pg_backend_pid()"
+            )
+            assert cursor.fetchone()[0] >= 1
+        before = _job(job.pk).iterations
+        wait_for(lambda: (j := _job(job.pk)).iterations > before or not j.is_active,
+                 TRAIN_DEADLINE_S, "an iteration after the drop, or an end", log_path)  # fmt: skip
+        final = _finish(job.pk, alice, log_path)
+    assert final.status in (JobStatus.COMPLETED, JobStatus.FAILED)
+    if final.status == JobStatus.FAILED:
+        assert "OperationalError" in final.error or "connection" in final.error, final.error
+    model = RacingModel.objects.get(pk=job.model_id)
+    assert model.status == RacingModel.Status.READY  # its checkpoint is usable either way
