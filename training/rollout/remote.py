@@ -31,6 +31,14 @@ IDLE_TIMEOUT_S = 600.0
 KEY_TTL_S = 3600
 
 
+def _client(redis_url: str) -> redis.Redis:
+    """A client whose socket waits longer than our longest blocking pop: redis-py's default
+    read timeout (5 s in redis-py 8) would end a pop that is still legitimately waiting for a
+    slow step on a loaded machine ("Timeout reading from socket")."""
+    longest_pop = max(START_TIMEOUT_S, STEP_TIMEOUT_S, IDLE_TIMEOUT_S)
+    return redis.Redis.from_url(redis_url, socket_timeout=longest_pop + 30)
+
+
 def _keys(prefix: str, session: str, slot: int) -> tuple[str, str]:
     base = f"{prefix}racecraft:rollout:{session}:{slot}"
     return f"{base}:cmd", f"{base}:reply"
@@ -55,7 +63,7 @@ def _pop(client: redis.Redis, key: str, timeout: float) -> Any | None:
 def serve_rollout(*, redis_url: str, prefix: str, session: str, slot: int, args: dict,
                   reward_source: str) -> str:  # fmt: skip
     """Run on a simulation machine: a sandboxed rollout worker, bridged to Redis."""
-    client = redis.Redis.from_url(redis_url)
+    client = _client(redis_url)
     cmd_key, reply_key = _keys(prefix, session, slot)
     worker = SandboxProcess(
         target="training.rollout.vecenv:worker_main",
@@ -135,7 +143,7 @@ class RemoteVecEnv(_WorkerVecEnv):
         probe = spec.make(None)
         obs_space, act_space = probe.observation_space, probe.action_space
         probe.close()
-        self.client = redis.Redis.from_url(redis_url)
+        self.client = _client(redis_url)
         session = uuid.uuid4().hex
         self.slots = [RemoteSlot(self.client, prefix, session, i) for i in range(num_slots)]
         for i, size in enumerate(self.sizes):
