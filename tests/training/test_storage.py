@@ -1,7 +1,8 @@
 """The object store contract, run against a local folder and a real S3 server on loopback.
 
-The S3 server is moto's ThreadedMotoServer on 127.0.0.1 (an ephemeral port); the minio SDK
-talks plain HTTP to it, exactly as it talks to MinIO in production.
+The S3 server is moto's ThreadedMotoServer on 127.0.0.1 (an ephemeral port; the
+``s3_endpoint`` fixture of tests/support.py); the minio SDK talks plain HTTP to it, exactly as
+it talks to MinIO in production.
 """
 
 from __future__ import annotations
@@ -9,12 +10,11 @@ from __future__ import annotations
 import os
 import threading
 import uuid
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from moto.server import ThreadedMotoServer
 
+from tests.support import S3_ACCESS_KEY, S3_SECRET_KEY
 from training.interchange.layout import ModelKeys, model_prefix
 from training.storage import (
     LocalStore,
@@ -26,26 +26,7 @@ from training.storage import (
     validate_key,
 )
 
-ACCESS, SECRET = "racecraft-test", "racecraft-test-secret"
-
-
-@pytest.fixture(scope="module")
-def s3_endpoint() -> Iterator[str]:
-    """``host:port`` of a moto S3 server on loopback for this module."""
-    saved = {k: os.environ.get(k) for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY")}
-    os.environ["AWS_ACCESS_KEY_ID"], os.environ["AWS_SECRET_ACCESS_KEY"] = ACCESS, SECRET
-    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
-    server.start()
-    host, port = server.get_host_and_port()
-    try:
-        yield f"{host}:{port}"
-    finally:
-        server.stop()
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+ACCESS, SECRET = S3_ACCESS_KEY, S3_SECRET_KEY  # what the s3_endpoint fixture accepts
 
 
 def minio_store(endpoint: str, bucket: str | None = None) -> MinioStore:
