@@ -414,12 +414,21 @@ class MinioStore(ObjectStore):
 
 
 def check_bucket_name(bucket: str) -> str:
-    """Return ``bucket`` if it starts with ``"deepracer"`` and is a valid S3 bucket name."""
+    """Return ``bucket`` if DeepRacer tools can use it, else raise :class:`StoreError`.
+
+    The name must start with ``"deepracer"`` (DeepRacer tools only read such buckets) and be a
+    valid S3 name: 3-63 lowercase letters, digits, dots or hyphens, a letter or digit at both
+    ends, no ``..``. The settings check ``MINIO_BUCKET`` with it too.
+    """
     if not isinstance(bucket, str) or not bucket.startswith(BUCKET_PREFIX):
-        raise StoreError(f"bucket {bucket!r} must start with {BUCKET_PREFIX!r}")
+        raise StoreError(
+            f"bucket {bucket!r} must start with {BUCKET_PREFIX!r} "
+            f"(DeepRacer tools only read buckets named {BUCKET_PREFIX}*)"
+        )
     if not _BUCKET_RE.match(bucket) or ".." in bucket:
         raise StoreError(
-            f"bucket {bucket!r} is not a valid S3 name (3-63 lowercase letters, digits, . or -)"
+            f"bucket {bucket!r} is not a valid bucket name "
+            "(3-63 lowercase letters, digits, dots or hyphens)"
         )
     return bucket
 

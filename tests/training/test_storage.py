@@ -22,6 +22,7 @@ from training.storage import (
     ObjectNotFound,
     ObjectStore,
     StoreError,
+    check_bucket_name,
     store_from_settings,
     validate_key,
 )
@@ -261,11 +262,29 @@ def test_minio_creates_missing_bucket_once(s3_endpoint: str) -> None:
     assert second.client.bucket_exists(bucket)
 
 
+@pytest.mark.parametrize("bucket", ["deepracer-models", "deepracer", "deepracer.team-1"])
+def test_bucket_names_deepracer_tools_read(bucket: str) -> None:
+    assert check_bucket_name(bucket) == bucket
+
+
 @pytest.mark.parametrize(
-    "bucket", ["models", "racecraft", "DeepRacer-x", "deepracer_x", "deepracer-", "deepracer..x"]
+    ("bucket", "message"),
+    [
+        ("models", "must start with 'deepracer'"),
+        ("racecraft", "must start with 'deepracer'"),
+        ("my-deepracer", "must start with 'deepracer'"),
+        ("DeepRacer-x", "must start with 'deepracer'"),
+        ("deepracer_x", "not a valid bucket name"),
+        ("deepracer_Models", "not a valid bucket name"),
+        ("deepracer-", "not a valid bucket name"),
+        ("deepracer..x", "not a valid bucket name"),
+        ("deepracer" + "x" * 60, "not a valid bucket name"),
+    ],
 )
-def test_minio_bucket_name_rule(bucket: str) -> None:
-    with pytest.raises(StoreError, match="bucket"):
+def test_minio_bucket_name_rule(bucket: str, message: str) -> None:
+    with pytest.raises(StoreError, match=message):
+        check_bucket_name(bucket)
+    with pytest.raises(StoreError, match=message):
         MinioStore("127.0.0.1:9", ACCESS, SECRET, bucket=bucket)
 
 
