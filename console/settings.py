@@ -183,11 +183,12 @@ if MINIO_ENDPOINT and not (MINIO_ACCESS_KEY and MINIO_SECRET_KEY):
     raise ImproperlyConfigured("MINIO_ENDPOINT is set: MINIO_ACCESS_KEY and MINIO_SECRET_KEY too")
 STORE_DIR = Path(envstr("STORE_DIR", str(VAR_DIR / "store")))
 
-# Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 # Training: rollouts on this machine (0) or on that many `-Q simulation` workers elsewhere.
 RACECRAFT_REMOTE_ROLLOUT_SLOTS = envint("RACECRAFT_REMOTE_ROLLOUT_SLOTS", 0, minimum=0)
 RACECRAFT_MAX_MODELS_PER_USER = envint("RACECRAFT_MAX_MODELS_PER_USER", 50, minimum=1)
 RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = envint("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER", 2, minimum=1)
+
+# Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks")))
 
 LOGGING = {
