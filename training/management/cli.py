@@ -322,6 +322,21 @@ def add_owner_argument(parser, *, required: bool) -> None:
     )
 
 
+def add_model_arguments(parser) -> None:
+    """``MODEL_ID`` and an optional ``--owner``, read back with :func:`owner_and_model`."""
+    parser.add_argument("model_id", type=int, metavar="MODEL_ID")
+    add_owner_argument(parser, required=False)
+
+
+def add_queue_argument(parser, *, what: str) -> None:
+    """``--queue``: a worker runs the ``what`` (job, evaluation) and the command follows it."""
+    parser.add_argument(
+        "--queue",
+        action="store_true",
+        help=f"queue the {what} for a Celery worker and follow it, instead of running it here",
+    )
+
+
 def owner_and_model(model_id: int, owner: str | None):
     """``(user, model)``: ``owner``'s model ``model_id``, or the model and its owner."""
     with service_errors():
