@@ -57,7 +57,7 @@ class DeepRacerPPO(PPO):
 
     SB3 has no hook for the value loss (``PPO.train`` calls ``F.mse_loss`` inline), so
     ``train`` is SB3 2.9's own, step for step, with the value loss from ``value_loss``; with
-    ``mean_squared_error`` an update is exactly SB3's (tests/training/test_algorithms.py holds
+    ``mean_squared_error`` an update is exactly SB3's (tests/training/rl/test_algorithms.py holds
     both to that, so an SB3 upgrade that changes its update shows up there).
     """
 
