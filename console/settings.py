@@ -14,8 +14,9 @@ import dj_database_url
 from celery.schedules import crontab
 from django.core.exceptions import ImproperlyConfigured
 
-from console.env import bucket_name, envbool, envint, envlist, envstr
+from console.env import envbool, envint, envlist, envstr
 from console.redisconf import celery_settings, channel_layers
+from training.storage import DEFAULT_BUCKET, StoreError, check_bucket_name
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 # Runtime state (SQLite file, embedded Redis socket, local object store); git-ignored.
@@ -174,16 +175,20 @@ MINIO_ENDPOINT = envstr("MINIO_ENDPOINT")
 MINIO_ACCESS_KEY = envstr("MINIO_ACCESS_KEY")
 MINIO_SECRET_KEY = envstr("MINIO_SECRET_KEY")
 MINIO_SECURE = envbool("MINIO_SECURE", False)
-MINIO_BUCKET = bucket_name(envstr("MINIO_BUCKET", "deepracer-models"))
+try:
+    MINIO_BUCKET = check_bucket_name(envstr("MINIO_BUCKET", DEFAULT_BUCKET))
+except StoreError as exc:
+    raise ImproperlyConfigured(f"MINIO_BUCKET: {exc}") from None
 if MINIO_ENDPOINT and not (MINIO_ACCESS_KEY and MINIO_SECRET_KEY):
     raise ImproperlyConfigured("MINIO_ENDPOINT is set: MINIO_ACCESS_KEY and MINIO_SECRET_KEY too")
 STORE_DIR = Path(envstr("STORE_DIR", str(VAR_DIR / "store")))
 
-# Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 # Training: rollouts on this machine (0) or on that many `-Q simulation` workers elsewhere.
 RACECRAFT_REMOTE_ROLLOUT_SLOTS = envint("RACECRAFT_REMOTE_ROLLOUT_SLOTS", 0, minimum=0)
 RACECRAFT_MAX_MODELS_PER_USER = envint("RACECRAFT_MAX_MODELS_PER_USER", 50, minimum=1)
 RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = envint("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER", 2, minimum=1)
+
+# Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks")))
 
 LOGGING = {

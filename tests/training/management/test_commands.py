@@ -36,12 +36,6 @@ TINY_HYPERPARAMETERS = {"num_episodes_between_training": 4, "num_epochs": 3, "ba
 
 
 @pytest.fixture
-def store_dir(tmp_path, settings):
-    settings.STORE_DIR = tmp_path / "store"
-    return settings.STORE_DIR
-
-
-@pytest.fixture
 def alice(db):
     return get_user_model().objects.create_user("alice", password="pw-alice-123")
 

@@ -14,12 +14,7 @@ from training.services import RewardRejected, ServiceError
 ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-30, 0, 30)]
 REWARD = "def reward_function(params):\n    return 1.0\n"
 
-pytestmark = pytest.mark.django_db
-
-
-@pytest.fixture(autouse=True)
-def store_dir(tmp_path, settings):
-    settings.STORE_DIR = tmp_path / "store"
+pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("store_dir")]
 
 
 @pytest.fixture

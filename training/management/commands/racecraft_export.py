@@ -9,7 +9,7 @@ from typing import Any
 
 from django.core.management.base import BaseCommand, CommandError
 
-from training.management.cli import add_owner_argument, owner_and_model, service_errors
+from training.management.cli import add_model_arguments, owner_and_model, service_errors
 from training.models import RacingModel
 from training.services import downloads
 
@@ -30,8 +30,7 @@ class Command(BaseCommand):
     )
 
     def add_arguments(self, parser: ArgumentParser) -> None:
-        parser.add_argument("model_id", type=int, metavar="MODEL_ID")
-        add_owner_argument(parser, required=False)
+        add_model_arguments(parser)
         for kind, (_, filename, what) in ARCHIVES.items():
             parser.add_argument(
                 f"--{kind}",
