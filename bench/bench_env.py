@@ -25,7 +25,11 @@ from racing.env import RacingEnv  # noqa: E402
 from racing.track import Track  # noqa: E402
 
 cv2.setNumThreads(1)
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "tracks"
+SHARED = next(
+    (p / "shared" / "tracks" for p in Path(__file__).resolve().parents if (p / "shared").is_dir()),
+    Path(__file__).resolve().parents[2] / "shared" / "tracks",
+)
+"""DeepRacer's track files: the nearest ``shared/tracks`` above this file (checkout or worktree)."""
 
 
 def load_track(name: str) -> Track | str:

@@ -1,0 +1,136 @@
+"""The objects of one environment through an episode: placing them, moving the bots, telling a
+crash from a harmless touch, and where a car starts or respawns near them.
+
+DeepRacer's rules (SimApp's ``rollout_agent_ctrl`` and ``bot_cars_agent_ctrl``):
+
+- Touching a box is always a crash. Touching a bot car is a crash only when the car is behind
+  the bot (it ran into it); when a bot runs into the car from behind, the bots stop for
+  :attr:`RaceWorld.bot_pause_s` seconds instead and the car is not at fault.
+- While the car sits out a penalty, the world goes on: the bots keep driving.
+- A car that starts an episode within :data:`CLOSEST_OBJECT_GAP_M` of an object starts in the
+  other lane.
+- A car respawned within :data:`CLOSEST_OBJECT_GAP_M` of a box is put
+  :data:`RESET_BEHIND_M` behind it, in the other lane.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from racing.bodies import ObjectBodies
+from racing.car import CarSim
+from racing.objects import KIND_BOT, BotFleet, Lanes, RaceObject, place_boxes
+from racing.race import RaceConfig
+from racing.track import Track
+
+CLOSEST_OBJECT_GAP_M = 1.0
+"""An object this close along the centre line moves a start or a respawn, metres."""
+RESET_BEHIND_M = 1.0
+"""A car respawned near a box is put this far behind it, metres."""
+
+
+@dataclass(frozen=True, slots=True)
+class Spot:
+    """A place on the track: ``s`` metres along the centre line, ``offset`` metres left of it."""
+
+    s: float
+    offset: float
+
+
+class RaceWorld:
+    """This env's boxes or bot cars, in the car's PyBullet world."""
+
+    def __init__(self, sim: CarSim, config: RaceConfig, *, bot_pause_s: float) -> None:
+        self.config = config
+        self.bot_pause_s = bot_pause_s
+        self.bodies = ObjectBodies(sim)
+        self._lanes: dict[int, Lanes] = {}
+        self._boxes: tuple[RaceObject, ...] = ()
+        self.fleet: BotFleet | None = None
+        self.track: Track | None = None
+
+    @property
+    def objects(self) -> tuple[RaceObject, ...]:
+        """Every object now, in params order: the boxes, or the bot cars."""
+        return self.fleet.objects if self.fleet is not None else self._boxes
+
+    def lanes(self, track: Track) -> Lanes:
+        lanes = self._lanes.get(id(track))
+        if lanes is None:
+            lanes = self._lanes[id(track)] = Lanes(track)
+        return lanes
+
+    def reset(self, track: Track, rng: np.random.Generator) -> None:
+        """Place this episode's objects on ``track`` (already in the driving direction).
+        Raises ``ValueError`` when the configured objects do not fit on the track."""
+        self.track = track
+        lanes = self.lanes(track)
+        self.fleet = None
+        self._boxes = ()
+        if self.config.has_boxes:
+            self._boxes = place_boxes(track, lanes, self.config, rng)
+        elif self.config.has_bots:
+            self.fleet = BotFleet(track, lanes, self.config, rng)
+        self.bodies.sync(self.objects)
+
+    def advance(self, seconds: float) -> None:
+        """Move the bots on by ``seconds`` of simulated time and their bodies with them."""
+        if self.fleet is not None:
+            self.fleet.advance(seconds)
+            self.bodies.sync(self.fleet.objects)
+
+    def crash(self, car_s: float) -> RaceObject | None:
+        """The object the car crashed into in the last physics step by DeepRacer's rules, or
+        ``None``; a bot that hit the car from behind is paused instead. ``car_s`` is the car's
+        reported point along the centre line, metres."""
+        index = self.bodies.touching()
+        if index is None:
+            return None
+        obj = self.objects[index]
+        if obj.kind != KIND_BOT or self._gap_ahead(car_s, obj) > 0.0:
+            return obj
+        assert self.fleet is not None
+        if not self.fleet.paused:
+            self.fleet.pause(self.bot_pause_s)
+        return None
+
+    def _gap_ahead(self, car_s: float, obj: RaceObject) -> float:
+        """Centre-line distance from the car forward to ``obj``, -L/2..L/2 on a loop, metres."""
+        assert self.track is not None
+        gap = self.track.locate(obj.x, obj.y).s - car_s
+        if self.track.closed:
+            half = self.track.length / 2
+            gap = (gap + half) % self.track.length - half
+        return gap
+
+    def _nearest(self, s: float, objects: tuple[RaceObject, ...]) -> RaceObject | None:
+        near = [(abs(self._gap_ahead(s, o)), i) for i, o in enumerate(objects)]
+        near = [item for item in near if item[0] < CLOSEST_OBJECT_GAP_M]
+        return objects[min(near)[1]] if near else None
+
+    def _other_lane(self, obj: RaceObject, s: float) -> float:
+        """Offset (metres left) of the lane that ``obj`` is not in, at ``s``."""
+        assert self.track is not None
+        lanes = self.lanes(self.track)
+        loc = self.track.locate(obj.x, obj.y)
+        lane = lanes.lane_of(loc.distance if loc.left else -loc.distance)
+        return lanes.offset(s, -lane)
+
+    def start_offset(self, s: float) -> float | None:
+        """Offset for a car starting at ``s`` next to an object, else ``None`` (no change)."""
+        obj = self._nearest(s, self.objects)
+        return None if obj is None else self._other_lane(obj, s)
+
+    def respawn_spot(self, s: float) -> Spot | None:
+        """Where a car respawning at ``s`` goes when a box is close, else ``None``."""
+        boxes = tuple(o for o in self.objects if o.kind != KIND_BOT)
+        box = self._nearest(s, boxes)
+        if box is None:
+            return None
+        assert self.track is not None
+        spot_s = self.track.locate(box.x, box.y).s - RESET_BEHIND_M
+        if self.track.closed:
+            spot_s %= self.track.length
+        return Spot(spot_s, self._other_lane(box, spot_s))
