@@ -1,12 +1,15 @@
-"""Env steps per second with the camera observation, fast path against PyBullet rendering.
+"""Env steps per second: the camera-only time trial (fast path against PyBullet rendering) and
+object avoidance with 6 boxes seen by the stereo camera and the LIDAR.
 
-Both run in this one process, on the same track, with the same random actions and the default
+All run in this one process, on the same track, with the same random actions and the default
 reward. The reference renders every observation with PyBullet's getCameraImage (TinyRenderer)
-instead of the homography camera; everything else is the same env.
+instead of the homography camera; everything else is the same env. The objects row places 6
+boxes at random each episode and observes ``STEREO_CAMERAS`` + ``LIDAR`` (a Dict observation).
 
     .venv/bin/python bench/bench_env.py [--track ID_OR_PATH] [--steps N]
 
-Last line: ``steps_per_s=… reference_steps_per_s=… ratio=…`` (targets: ≥ 2,000 and ≥ 15×).
+Last line: ``steps_per_s=… reference_steps_per_s=… ratio=… objects_steps_per_s=…`` (targets:
+≥ 2,000, ≥ 15× and ≥ 1,000 steps/s per core).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from racing.env import RacingEnv  # noqa: E402
+from racing.race import RaceConfig, RaceType  # noqa: E402
 from racing.track import Track  # noqa: E402
 
 cv2.setNumThreads(1)
@@ -70,6 +74,15 @@ def main() -> None:
     fast_env = RacingEnv(track, start="round_robin")
     measure(fast_env, actions[:500])  # warm-up: textures, caches
     fast, fast_eps = measure(fast_env, actions)
+    race = RaceConfig(
+        race_type=RaceType.OBJECT_AVOIDANCE, number_of_objects=6, randomize_objects=True
+    )
+    objects_env = RacingEnv(
+        track, start="round_robin", sensors=["STEREO_CAMERAS", "LIDAR"], race=race
+    )
+    measure(objects_env, actions[:500])
+    objects, objects_eps = measure(objects_env, actions)
+    objects_env.close()
     ref_env = RacingEnv(track, start="round_robin", camera_backend="pybullet")
     measure(ref_env, actions[:20])
     ref, ref_eps = measure(ref_env, actions[: args.reference_steps])
@@ -80,9 +93,14 @@ def main() -> None:
     print(f"track: {name}   observation: 160x120 grayscale front camera   one process")
     print(f"{'path':<34}{'steps':>8}{'episodes':>10}{'steps/s':>10}")
     print(f"{'fast (homography camera)':<34}{args.steps:>8}{fast_eps:>10}{fast:>10.0f}")
+    label = "6 boxes, stereo + LIDAR"
+    print(f"{label:<34}{args.steps:>8}{objects_eps:>10}{objects:>10.0f}")
     label = "reference (pybullet getCameraImage)"
     print(f"{label:<34}{args.reference_steps:>8}{ref_eps:>10}{ref:>10.0f}")
-    print(f"steps_per_s={fast:.0f} reference_steps_per_s={ref:.0f} ratio={fast / ref:.1f}")
+    print(
+        f"steps_per_s={fast:.0f} reference_steps_per_s={ref:.0f} ratio={fast / ref:.1f} "
+        f"objects_steps_per_s={objects:.0f}"
+    )
 
 
 if __name__ == "__main__":

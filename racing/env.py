@@ -384,7 +384,14 @@ class RacingEnv(gym.Env):
     def _params(self, *, loc: Location, **state) -> dict:
         """This step's ``params``; ``object_in_camera`` asks the camera about the next object."""
         objects = self.world.objects
-        params = build_params(track=self.track, pose=self.pose, loc=loc, objects=objects, **state)
+        params = build_params(
+            track=self.track,
+            pose=self.pose,
+            loc=loc,
+            objects=objects,
+            object_locations=self.world.locations,
+            **state,
+        )
         if objects:
             ahead = objects[params["closest_objects"][1]]
             params["object_in_camera"] = self.camera.sees(self.pose, ahead)

@@ -52,6 +52,8 @@ NUMBER_OF_SECTORS = 8
 SECTOR_CLIP_M = 0.5
 DISCRETIZED_VALUES = 8
 DISCRETIZED_CLIP_M = 2.0
+NOISE_MARGIN = 6.0
+"""Returns up to this many noise σ beyond an observation's clip are still cast."""
 
 SENSOR_LIDAR = "LIDAR"
 SENSOR_SECTOR_LIDAR = "SECTOR_LIDAR"
@@ -61,18 +63,26 @@ BEAM_ANGLES_RAD = np.linspace(-LIDAR_MAX_ANGLE_RAD, LIDAR_MAX_ANGLE_RAD, LIDAR_S
 """Beam directions in the sensor's frame; add the car's yaw and the mount's to get the world's."""
 
 
-def cast(pose: Pose, objects: Sequence[RaceObject]) -> np.ndarray:
-    """Noise-free ranges (metres, ``inf`` for no return) of the 64 beams from a car at ``pose``."""
+def cast(
+    pose: Pose, objects: Sequence[RaceObject], max_range: float = LIDAR_MAX_RANGE_M
+) -> np.ndarray:
+    """Noise-free ranges (metres, ``inf`` for no return) of the 64 beams from a car at ``pose``;
+    objects wholly farther than ``max_range`` metres are not cast against."""
     c, s = math.cos(pose.yaw), math.sin(pose.yaw)
     ox = pose.x + c * LIDAR_MOUNT_X_M
     oy = pose.y + s * LIDAR_MOUNT_X_M
-    angles = BEAM_ANGLES_RAD + (pose.yaw + LIDAR_MOUNT_YAW_RAD)
-    dx, dy = np.cos(angles), np.sin(angles)
-    tall = [o for o in objects if o.height > LIDAR_MOUNT_HEIGHT_M]
+    tall = [
+        o
+        for o in objects
+        if o.height > LIDAR_MOUNT_HEIGHT_M
+        and math.hypot(o.x - ox, o.y - oy) - math.hypot(o.length, o.width) / 2 <= max_range
+    ]
     if not tall:
         return np.full(LIDAR_SAMPLES, np.inf)
     cx = np.array([o.x for o in tall])[:, None]
     cy = np.array([o.y for o in tall])[:, None]
+    angles = BEAM_ANGLES_RAD + (pose.yaw + LIDAR_MOUNT_YAW_RAD)
+    dx, dy = np.cos(angles), np.sin(angles)
     ch = np.cos([o.heading for o in tall])[:, None]
     sh = np.sin([o.heading for o in tall])[:, None]
     hl = np.array([o.length / 2 for o in tall])[:, None]
@@ -88,7 +98,7 @@ def cast(pose: Pose, objects: Sequence[RaceObject]) -> np.ndarray:
     t_far = np.minimum(np.maximum(tx1, tx2), np.maximum(ty1, ty2))
     hit = (t_far >= np.maximum(t_near, 0.0)) & (t_near > 0.0)
     ranges = np.where(hit, t_near, np.inf).min(axis=0)
-    return ranges
+    return np.where(ranges <= max_range, ranges, np.inf)
 
 
 def sector_discretize(ranges: np.ndarray, sectors: int, values: int, clip_m: float) -> np.ndarray:
@@ -118,13 +128,24 @@ class LidarSensor:
         else:
             raise ValueError(f"{kind!r} is not a LIDAR sensor")
         self.kind = kind
+        clip = {
+            SENSOR_LIDAR: LIDAR_CLIP_M,
+            SENSOR_SECTOR_LIDAR: SECTOR_CLIP_M,
+            SENSOR_DISCRETIZED_LIDAR: DISCRETIZED_CLIP_M,
+        }[kind]
+        # Returns beyond the clip read as the clip: no need to look farther (noise included).
+        self.reach = clip + NOISE_MARGIN * LIDAR_NOISE_STD_M
 
     def scan(
-        self, pose: Pose, objects: Sequence[RaceObject], rng: np.random.Generator
+        self,
+        pose: Pose,
+        objects: Sequence[RaceObject],
+        rng: np.random.Generator,
+        max_range: float = LIDAR_MAX_RANGE_M,
     ) -> np.ndarray:
         """Measured ranges in metres: :func:`cast` plus the sensor's noise, returns nearer than
-        the minimum range read as the minimum, ``inf`` for no return."""
-        ranges = cast(pose, objects)
+        the minimum range read as the minimum, ``inf`` for no return (or beyond ``max_range``)."""
+        ranges = cast(pose, objects, max_range)
         finite = np.isfinite(ranges)
         if finite.any():
             noise = rng.normal(0.0, LIDAR_NOISE_STD_M, LIDAR_SAMPLES)
@@ -135,7 +156,7 @@ class LidarSensor:
         self, pose: Pose, objects: Sequence[RaceObject], rng: np.random.Generator
     ) -> np.ndarray:
         """This sensor's observation (see the module docstring), float32."""
-        ranges = self.scan(pose, objects, rng)
+        ranges = self.scan(pose, objects, rng, self.reach)
         if self.kind == SENSOR_LIDAR:
             return np.clip(ranges, LIDAR_MIN_RANGE_M, LIDAR_CLIP_M).astype(np.float32)
         if self.kind == SENSOR_SECTOR_LIDAR:

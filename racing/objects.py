@@ -212,26 +212,27 @@ class BotFleet:
                 bot.change_start_m = self.travelled_m
         self.objects = self._poses()
 
-    def _offset(self, bot: _Bot, s: float, travelled: float) -> float:
+    def _offset(self, bot: _Bot, s: float) -> tuple[float, float]:
+        """The bot's offset (metres left of the centre line) at ``s`` and its slope (m/m)."""
         here = self.lanes.offset(s, bot.lane)
         if bot.target == bot.lane:
-            return here
-        t = smoothstep((travelled - bot.change_start_m) / LANE_CHANGE_DISTANCE_M)
-        return here + (self.lanes.offset(s, bot.target) - here) * t
+            return here, 0.0
+        done = (self.travelled_m - bot.change_start_m) / LANE_CHANGE_DISTANCE_M
+        shift = self.lanes.offset(s, bot.target) - here
+        slope = shift * 6.0 * done * (1.0 - done) / LANE_CHANGE_DISTANCE_M  # d smoothstep / ds
+        return here + shift * smoothstep(done), slope
 
     def _poses(self) -> tuple[RaceObject, ...]:
         poses = []
-        step = 0.05  # metres ahead, to take the heading from the lane's direction
         for bot in self.bots:
             s = (bot.start_s + self.travelled_m) % self.track.length
-            x, y = self.track.point_at(s, self._offset(bot, s, self.travelled_m))
-            ahead = s + step
-            x2, y2 = self.track.point_at(ahead, self._offset(bot, ahead, self.travelled_m + step))
+            offset, slope = self._offset(bot, s)
+            x, y = self.track.point_at(s, offset)
             poses.append(
                 RaceObject(
                     x,
                     y,
-                    heading=math.atan2(y2 - y, x2 - x),
+                    heading=self.track.heading_at(s) + math.atan(slope),
                     speed=self.config.bot_speed,
                     length=BOT_LENGTH_M,
                     width=BOT_WIDTH_M,

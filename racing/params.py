@@ -73,9 +73,11 @@ def build_params(
     is_crashed: bool = False,
     sim_time: float = 0.0,
     objects: Sequence[RaceObject] = (),
+    object_locations: Sequence[Location] | None = None,
     object_in_camera: bool = False,
 ) -> dict:
-    """The ``params`` dict for one step. ``loc`` locates the reported point (0.14 m ahead)."""
+    """The ``params`` dict for one step. ``loc`` locates the reported point (0.14 m ahead);
+    ``object_locations`` (the objects located on ``track``) saves locating them again."""
     behind, ahead = track.closest_waypoints(loc)
     params = {
         "all_wheels_on_track": wheels_on_track == 4,
@@ -107,11 +109,15 @@ def build_params(
         "sim_time": float(sim_time),
     }
     if objects:
-        _add_objects(params, track, loc, objects)
+        if object_locations is None:
+            object_locations = [track.locate(o.x, o.y) for o in objects]
+        _add_objects(params, loc, objects, object_locations)
     return params
 
 
-def _add_objects(params: dict, track: Track, car: Location, objects: Sequence[RaceObject]) -> None:
+def _add_objects(
+    params: dict, car: Location, objects: Sequence[RaceObject], locs: Sequence[Location]
+) -> None:
     """The object keys, as DeepRacer's ``get_object_reward_params`` fills them.
 
     ``objects_distance``: each object's projection on the centre line, metres from the start
@@ -121,7 +127,6 @@ def _add_objects(params: dict, track: Track, car: Location, objects: Sequence[Ra
     ``objects_speed`` and ``objects_heading``: a bot's speed (m/s) and heading (degrees,
     -180..180); 0 for a box, as DeepRacer reports static obstacles.
     """
-    locs = [track.locate(o.x, o.y) for o in objects]
     bots = [o.kind == KIND_BOT for o in objects]
     params["objects_location"] = [[float(o.x), float(o.y)] for o in objects]
     params["objects_distance"] = [lo.s for lo in locs]

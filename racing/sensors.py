@@ -23,7 +23,7 @@ import numpy as np
 import pybullet as pb
 
 from racing.car import Pose
-from racing.drawing import box_corners, draw_boxes, object_box
+from racing.drawing import BoxSet, draw_boxes
 from racing.lidar import SENSOR_DISCRETIZED_LIDAR, SENSOR_LIDAR, SENSOR_SECTOR_LIDAR
 from racing.objects import RaceObject
 from racing.texture import GroundTexture, render_ground
@@ -176,25 +176,36 @@ class PinholeCamera:
                 borderValue=self._border,
             )
         if objects:
-            pos, rot = camera_frame(pose, self.mount)
-            draw_boxes(frame, self.K, pos, rot, [object_box(o) for o in objects])
+            self.draw(frame, pose, BoxSet.of(objects))
         return frame
+
+    def draw(self, frame: np.ndarray, pose: Pose, boxes: BoxSet) -> None:
+        """Paint ``boxes`` into this camera's ``frame`` seen from a car at ``pose``."""
+        pos, rot = camera_frame(pose, self.mount)
+        draw_boxes(frame, self.K, pos, rot, boxes)
 
     def sees(self, pose: Pose, obj: RaceObject) -> bool:
         """Whether ``obj`` is in this camera's frustum: its centre or a corner of its footprint
         projects into the image at least :data:`FRUSTUM_NEAR_M` in front of the lens (the
         test DeepRacer makes for ``object_in_camera``)."""
-        corners = box_corners(obj.x, obj.y, obj.heading, obj.length, obj.width, 0.0)[::2]
-        points = np.vstack([corners, [[obj.x, obj.y, 0.0]]])
+        c, s = math.cos(obj.heading), math.sin(obj.heading)
+        hl, hw = obj.length / 2, obj.width / 2
+        points = np.array(
+            [
+                [obj.x + c * a - s * b, obj.y + s * a + c * b, 0.0]
+                for a, b in ((0, 0), (hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw))
+            ]
+        )
         pix, depth = self.project(pose, points)
         u, v = pix[:, 0], pix[:, 1]
-        inside = (
-            (depth >= FRUSTUM_NEAR_M)
-            & (u >= 0)
-            & (u <= self.mount.width - 1)
-            & (v >= 0)
-            & (v <= self.mount.height_px - 1)
-        )
+        with np.errstate(invalid="ignore"):
+            inside = (
+                (depth >= FRUSTUM_NEAR_M)
+                & (u >= 0)
+                & (u <= self.mount.width - 1)
+                & (v >= 0)
+                & (v <= self.mount.height_px - 1)
+            )
         return bool(inside.any())
 
     def project(self, pose: Pose, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -226,12 +237,20 @@ class CameraSensor:
         else:
             raise SensorError(f"{kind!r} is not a camera")
         self.shape = (CAMERA_HEIGHT, CAMERA_WIDTH, len(self.cameras))
+        self._drawn: tuple[Sequence[RaceObject], BoxSet | None] = ((), None)
 
     def observe(self, pose: Pose, objects: Sequence[RaceObject] = ()) -> np.ndarray:
         """The observation ``(120, 160, C)`` uint8 at ``pose`` with ``objects`` in view."""
-        if len(self.cameras) == 1:
-            return self.cameras[0].render(pose, objects)[..., None]
-        return np.stack([cam.render(pose, objects) for cam in self.cameras], axis=-1)
+        frames = [cam.render(pose) for cam in self.cameras]
+        if objects:
+            if objects is not self._drawn[0]:  # static boxes: the same tuple all episode
+                self._drawn = (objects, BoxSet.of(objects))
+            boxes = self._drawn[1]
+            for cam, frame in zip(self.cameras, frames, strict=True):
+                cam.draw(frame, pose, boxes)
+        if len(frames) == 1:
+            return frames[0][..., None]
+        return np.stack(frames, axis=-1)
 
     def sees(self, pose: Pose, obj: RaceObject) -> bool:
         """Whether any lens has ``obj`` in its frustum."""

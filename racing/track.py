@@ -296,6 +296,26 @@ class Track:
         seg, frac, d2 = self._nearest(x, y, None)
         return self._location(seg, frac, d2, x, y)
 
+    def locate_all(self, xs: np.ndarray, ys: np.ndarray) -> list[Location]:
+        """:meth:`locate` (full search) for many points at once, vectorised over the points."""
+        xs = np.asarray(xs, dtype=np.float64)[:, None]
+        ys = np.asarray(ys, dtype=np.float64)[:, None]
+        a, v = self._seg_start, self._seg_vec
+        wx = xs - a[:, 0]
+        wy = ys - a[:, 1]
+        t = np.clip((wx * v[:, 0] + wy * v[:, 1]) / self._seg_len2, 0.0, 1.0)
+        dx = wx - t * v[:, 0]
+        dy = wy - t * v[:, 1]
+        d2 = dx * dx + dy * dy
+        best = np.argmin(d2, axis=1)
+        rows = np.arange(len(best))
+        return [
+            self._location(
+                int(k), float(t[i, k]), float(d2[i, k]), float(xs[i, 0]), float(ys[i, 0])
+            )
+            for i, k in zip(rows, best, strict=True)
+        ]
+
     def _nearest(self, x: float, y: float, idx: np.ndarray | None) -> tuple[int, float, float]:
         a = self._seg_start if idx is None else self._seg_start[idx]
         v = self._seg_vec if idx is None else self._seg_vec[idx]

@@ -13,7 +13,15 @@ import cv2
 import numpy as np
 
 from racing.car import CHASSIS_CENTRE_X, Pose
-from racing.drawing import BOT_RGB, BOX_RGB, box_corners, draw_boxes, object_box
+from racing.drawing import (
+    BOT_RGB,
+    BOX_RGB,
+    BoxSet,
+    box_corners,
+    draw_boxes,
+    objects_colours,
+    objects_corners,
+)
 from racing.objects import KIND_BOT, RaceObject
 from racing.sensors import CameraMount, PinholeCamera, camera_frame
 from racing.texture import GroundTexture
@@ -45,7 +53,8 @@ class ChaseView:
         """The view behind the car at ``pose``, ``(240, 320, 3)`` RGB, objects included."""
         img = self.camera.render(pose)
         pos, rot = camera_frame(pose, self.camera.mount)
-        boxes = [object_box(o) for o in objects] + [(car_box(pose), CAR_RGB)]
+        corners = np.concatenate([objects_corners(objects), car_box(pose)[None]])
+        boxes = BoxSet.build(corners, [*objects_colours(objects), CAR_RGB])
         draw_boxes(img, self.camera.K, pos, rot, boxes)
         return img
 

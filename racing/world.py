@@ -23,7 +23,7 @@ from racing.bodies import ObjectBodies
 from racing.car import CarSim
 from racing.objects import KIND_BOT, BotFleet, Lanes, RaceObject, place_boxes
 from racing.race import RaceConfig
-from racing.track import Track
+from racing.track import Location, Track
 
 CLOSEST_OBJECT_GAP_M = 1.0
 """An object this close along the centre line moves a start or a respawn, metres."""
@@ -50,6 +50,8 @@ class RaceWorld:
         self._boxes: tuple[RaceObject, ...] = ()
         self.fleet: BotFleet | None = None
         self.track: Track | None = None
+        self.locations: tuple[Location, ...] = ()
+        """Every object located on the track (same order as :attr:`objects`)."""
 
     @property
     def objects(self) -> tuple[RaceObject, ...]:
@@ -74,12 +76,23 @@ class RaceWorld:
         elif self.config.has_bots:
             self.fleet = BotFleet(track, lanes, self.config, rng)
         self.bodies.sync(self.objects)
+        self._locate()
 
     def advance(self, seconds: float) -> None:
         """Move the bots on by ``seconds`` of simulated time and their bodies with them."""
-        if self.fleet is not None:
+        if self.fleet is not None and self.track is not None:
             self.fleet.advance(seconds)
             self.bodies.sync(self.fleet.objects)
+            self._locate()
+
+    def _locate(self) -> None:
+        objects = self.objects
+        if self.track is None or not objects:
+            self.locations = ()
+            return
+        xs = [o.x for o in objects]
+        ys = [o.y for o in objects]
+        self.locations = tuple(self.track.locate_all(xs, ys))
 
     def crash(self, car_s: float) -> RaceObject | None:
         """The object the car crashed into in the last physics step by DeepRacer's rules, or
@@ -89,48 +102,54 @@ class RaceWorld:
         if index is None:
             return None
         obj = self.objects[index]
-        if obj.kind != KIND_BOT or self._gap_ahead(car_s, obj) > 0.0:
+        if obj.kind != KIND_BOT or self._gap_ahead(car_s, index) > 0.0:
             return obj
         assert self.fleet is not None
         if not self.fleet.paused:
             self.fleet.pause(self.bot_pause_s)
         return None
 
-    def _gap_ahead(self, car_s: float, obj: RaceObject) -> float:
-        """Centre-line distance from the car forward to ``obj``, -L/2..L/2 on a loop, metres."""
+    def _gap_ahead(self, car_s: float, index: int) -> float:
+        """Centre-line distance from the car forward to object ``index``, -L/2..L/2 on a loop,
+        metres."""
         assert self.track is not None
-        gap = self.track.locate(obj.x, obj.y).s - car_s
+        gap = self.locations[index].s - car_s
         if self.track.closed:
             half = self.track.length / 2
             gap = (gap + half) % self.track.length - half
         return gap
 
-    def _nearest(self, s: float, objects: tuple[RaceObject, ...]) -> RaceObject | None:
-        near = [(abs(self._gap_ahead(s, o)), i) for i, o in enumerate(objects)]
+    def _nearest(self, s: float, *, boxes_only: bool = False) -> int | None:
+        """Index of the object nearest to ``s`` along the centre line within
+        :data:`CLOSEST_OBJECT_GAP_M`, or ``None``."""
+        near = [
+            (abs(self._gap_ahead(s, i)), i)
+            for i, o in enumerate(self.objects)
+            if not (boxes_only and o.kind == KIND_BOT)
+        ]
         near = [item for item in near if item[0] < CLOSEST_OBJECT_GAP_M]
-        return objects[min(near)[1]] if near else None
+        return min(near)[1] if near else None
 
-    def _other_lane(self, obj: RaceObject, s: float) -> float:
-        """Offset (metres left) of the lane that ``obj`` is not in, at ``s``."""
+    def _other_lane(self, index: int, s: float) -> float:
+        """Offset (metres left) at ``s`` of the lane that object ``index`` is not in."""
         assert self.track is not None
         lanes = self.lanes(self.track)
-        loc = self.track.locate(obj.x, obj.y)
+        loc = self.locations[index]
         lane = lanes.lane_of(loc.distance if loc.left else -loc.distance)
         return lanes.offset(s, -lane)
 
     def start_offset(self, s: float) -> float | None:
         """Offset for a car starting at ``s`` next to an object, else ``None`` (no change)."""
-        obj = self._nearest(s, self.objects)
-        return None if obj is None else self._other_lane(obj, s)
+        index = self._nearest(s)
+        return None if index is None else self._other_lane(index, s)
 
     def respawn_spot(self, s: float) -> Spot | None:
         """Where a car respawning at ``s`` goes when a box is close, else ``None``."""
-        boxes = tuple(o for o in self.objects if o.kind != KIND_BOT)
-        box = self._nearest(s, boxes)
-        if box is None:
+        index = self._nearest(s, boxes_only=True)
+        if index is None:
             return None
         assert self.track is not None
-        spot_s = self.track.locate(box.x, box.y).s - RESET_BEHIND_M
+        spot_s = self.locations[index].s - RESET_BEHIND_M
         if self.track.closed:
             spot_s %= self.track.length
-        return Spot(spot_s, self._other_lane(box, spot_s))
+        return Spot(spot_s, self._other_lane(index, spot_s))
