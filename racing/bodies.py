@@ -57,6 +57,11 @@ class ObjectBodies:
         else:
             self._bodies.append((size, body))
 
+    @property
+    def body_ids(self) -> list[int]:
+        """PyBullet body ids of the current objects, in the objects' order."""
+        return [body for _, body in self._bodies[: self._count]]
+
     def touching(self) -> int | None:
         """Index of the object the car touched in the last physics step, or ``None``."""
         if not self._index:
