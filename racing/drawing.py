@@ -169,7 +169,8 @@ def draw_boxes(
     if any(ahead):
         front = cams[ahead]
         uv = front[..., :2] / front[..., 2:3] * focal + principal
-        fixed = np.round(uv * scale).astype(np.int32)
+        rounded = np.round(uv * scale).astype(np.int32)
+        fixed = np.ascontiguousarray(rounded[:, _FACE_CORNERS])  # (m, 5, 4, 2) for cv2
     row = 0
     for n, i in enumerate(order):
         rgb = boxes.colours[i]
@@ -181,7 +182,7 @@ def draw_boxes(
             if not looks:
                 continue
             if pts_all is not None:
-                pts = pts_all[_FACE_CORNERS[f]]
+                pts = pts_all[f]
             else:
                 poly = _clip_near(cams[n, _FACE_CORNERS[f]])
                 if len(poly) < 3:

@@ -79,14 +79,11 @@ def cast(
     ]
     if not tall:
         return np.full(LIDAR_SAMPLES, np.inf)
-    cx = np.array([o.x for o in tall])[:, None]
-    cy = np.array([o.y for o in tall])[:, None]
+    data = np.array([(o.x, o.y, o.heading, o.length / 2, o.width / 2) for o in tall])
+    cx, cy, heading, hl, hw = (column[:, None] for column in data.T)
+    ch, sh = np.cos(heading), np.sin(heading)
     angles = BEAM_ANGLES_RAD + (pose.yaw + LIDAR_MOUNT_YAW_RAD)
     dx, dy = np.cos(angles), np.sin(angles)
-    ch = np.cos([o.heading for o in tall])[:, None]
-    sh = np.sin([o.heading for o in tall])[:, None]
-    hl = np.array([o.length / 2 for o in tall])[:, None]
-    hw = np.array([o.width / 2 for o in tall])[:, None]
     # The beams in each object's own frame (x along its length).
     px, py = (ox - cx) * ch + (oy - cy) * sh, -(ox - cx) * sh + (oy - cy) * ch
     ux, uy = dx * ch + dy * sh, -dx * sh + dy * ch

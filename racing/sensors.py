@@ -187,26 +187,28 @@ class PinholeCamera:
     def sees(self, pose: Pose, obj: RaceObject) -> bool:
         """Whether ``obj`` is in this camera's frustum: its centre or a corner of its footprint
         projects into the image at least :data:`FRUSTUM_NEAR_M` in front of the lens (the
-        test DeepRacer makes for ``object_in_camera``)."""
-        c, s = math.cos(obj.heading), math.sin(obj.heading)
+        test DeepRacer makes for ``object_in_camera``). Plain floats: five points."""
+        m = self.mount
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        cam_x = pose.x + c * m.forward - s * m.left
+        cam_y = pose.y + s * m.forward + c * m.left
+        pitch = math.radians(m.pitch_deg)
+        cp, sp = math.cos(pitch), math.sin(pitch)
+        fx, cx, fy, cy = self.K[0, 0], self.K[0, 2], self.K[1, 1], self.K[1, 2]
+        oc, os_ = math.cos(obj.heading), math.sin(obj.heading)
         hl, hw = obj.length / 2, obj.width / 2
-        points = np.array(
-            [
-                [obj.x + c * a - s * b, obj.y + s * a + c * b, 0.0]
-                for a, b in ((0, 0), (hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw))
-            ]
-        )
-        pix, depth = self.project(pose, points)
-        u, v = pix[:, 0], pix[:, 1]
-        with np.errstate(invalid="ignore"):
-            inside = (
-                (depth >= FRUSTUM_NEAR_M)
-                & (u >= 0)
-                & (u <= self.mount.width - 1)
-                & (v >= 0)
-                & (v <= self.mount.height_px - 1)
-            )
-        return bool(inside.any())
+        for a, b in ((0.0, 0.0), (hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):
+            dx = obj.x + oc * a - os_ * b - cam_x
+            dy = obj.y + os_ * a + oc * b - cam_y
+            dz = -m.height
+            depth = c * cp * dx + s * cp * dy - sp * dz
+            if depth < FRUSTUM_NEAR_M:
+                continue
+            u = fx * (s * dx - c * dy) / depth + cx
+            v = fy * (-sp * c * dx - sp * s * dy - cp * dz) / depth + cy
+            if 0 <= u <= m.width - 1 and 0 <= v <= m.height_px - 1:
+                return True
+        return False
 
     def project(self, pose: Pose, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World points ``(N, 3)`` to pixels ``(N, 2)`` and their depth in front of the lens."""
