@@ -50,7 +50,9 @@ class ObjectBodies:
     def _replace(self, i: int, size: tuple[float, float, float]) -> None:
         c = self.sim.client
         shape = c.createCollisionShape(pb.GEOM_BOX, halfExtents=[v / 2 for v in size])
-        body = c.createMultiBody(0, shape, -1, [0.0, 0.0, PARKED_Z_M], [0, 0, 0, 1])
+        body = c.createMultiBody(
+            0, shape, -1, [0.0, 0.0, PARKED_Z_M], [0, 0, 0, 1], useMaximalCoordinates=True
+        )
         if i < len(self._bodies):
             c.removeBody(self._bodies[i][1])
             self._bodies[i] = (size, body)

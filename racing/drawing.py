@@ -20,8 +20,9 @@ from racing.objects import KIND_BOT, RaceObject
 
 NEAR_M = 0.02
 """Near clipping plane, metres in front of the lens."""
-MAX_DRAW_DISTANCE_M = 15.0
-"""Objects farther than this from the camera are a pixel or two wide and are not drawn, metres."""
+MAX_DRAW_DISTANCE_M = 10.0
+"""Objects farther than this from the camera are not drawn, metres: the front camera shows a box
+there under 2 pixels wide and a pixel high."""
 SUBPIXEL_BITS = 4
 """Fixed-point fraction bits for cv2's polygon filling (1/16 pixel)."""
 
@@ -41,6 +42,7 @@ _FACES = (
 )
 
 _FACE_CORNERS = np.array([idx for idx, _ in _FACES])
+_FACE_INDICES = tuple(idx for idx, _ in _FACES)
 _FACE_SHADES = tuple(shade for _, shade in _FACES)
 
 RGB = tuple[int, int, int]
@@ -77,29 +79,34 @@ def objects_colours(objects: Sequence[RaceObject]) -> list[RGB]:
     return [BOT_RGB if o.kind == KIND_BOT else BOX_RGB for o in objects]
 
 
+Point3 = tuple[float, float, float]
+
+
 @dataclass(frozen=True)
 class BoxSet:
-    """Boxes ready to draw from any camera: world ``corners`` ``(N, 8, 3)``, their centres and
-    bounding-sphere radii (metres), face centres and outward normals ``(N, 5, 3)``, colours."""
+    """Boxes ready to draw from any camera, as plain floats (metres): each box's eight
+    ``corners``, its centre and bounding-sphere radius, its faces' centres and outward normals,
+    and its colour."""
 
-    corners: np.ndarray
-    centres: list[tuple[float, float, float]]
+    corners: list[list[Point3]]
+    centres: list[Point3]
     radii: list[float]
-    face_centres: np.ndarray
-    normals: np.ndarray
+    face_centres: list[list[Point3]]
+    normals: list[list[Point3]]
     colours: list[RGB]
 
     @classmethod
     def build(cls, corners: np.ndarray, colours: Sequence[RGB]) -> BoxSet:
+        """From world corners ``(N, 8, 3)`` and one RGB colour per box."""
         centre = corners.mean(axis=1)
         face_centres = corners[:, _FACE_CORNERS].mean(axis=2)
         radii = np.linalg.norm(corners[:, 0] - corners[:, 7], axis=1) / 2
         return cls(
-            corners=corners,
+            corners=[[tuple(c) for c in box] for box in corners.tolist()],
             centres=[tuple(c) for c in centre.tolist()],
             radii=radii.tolist(),
-            face_centres=face_centres,
-            normals=face_centres - centre[:, None],
+            face_centres=[[tuple(c) for c in box] for box in face_centres.tolist()],
+            normals=[[tuple(n) for n in box] for box in (face_centres - centre[:, None]).tolist()],
             colours=list(colours),
         )
 
@@ -108,21 +115,19 @@ class BoxSet:
         return cls.build(objects_corners(objects), objects_colours(objects))
 
 
-def _clip_near(points: np.ndarray) -> np.ndarray:
-    """The part of a convex polygon (camera coordinates, ``(N, 3)``) in front of the near plane."""
-    inside = points[:, 2] >= NEAR_M
-    if inside.all():
-        return points
-    out = []
+def _clip_near(points: list[Point3]) -> list[Point3]:
+    """The part of a convex polygon (camera coordinates) in front of the near plane."""
+    out: list[Point3] = []
     n = len(points)
     for i in range(n):
         a, b = points[i], points[(i + 1) % n]
-        if inside[i]:
+        a_in, b_in = a[2] >= NEAR_M, b[2] >= NEAR_M
+        if a_in:
             out.append(a)
-        if inside[i] != inside[(i + 1) % n]:
+        if a_in != b_in:
             t = (NEAR_M - a[2]) / (b[2] - a[2])
-            out.append(a + t * (b - a))
-    return np.array(out)
+            out.append((a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), NEAR_M))
+    return out
 
 
 def draw_boxes(
@@ -132,13 +137,15 @@ def draw_boxes(
     ``position`` with world→camera ``rotation`` (OpenCV axes) and intrinsics ``k``.
 
     Boxes wholly behind the camera, beside its field of view or beyond
-    :data:`MAX_DRAW_DISTANCE_M` are culled by their bounding spheres in plain Python, so a
-    frame with no object in view costs a few microseconds more than the ground alone.
+    :data:`MAX_DRAW_DISTANCE_M` are culled by their bounding spheres. The few boxes left are
+    projected in plain floats (cheaper than NumPy calls for eight points), so a frame with no
+    object in view costs a few microseconds more than the ground alone.
     """
     w = img.shape[1]
     px, py, pz = position.tolist()
-    (rx, ry, rz), _, (fx, fy, fz) = rotation.tolist()
-    half_fov = math.atan((w / 2) / k[0, 0])
+    (rx, ry, rz), (dx_, dy_, dz_), (fx, fy, fz) = rotation.tolist()
+    fu, cu, fv, cv = float(k[0, 0]), float(k[0, 2]), float(k[1, 1]), float(k[1, 2])
+    half_fov = math.atan((w / 2) / fu)
     cos_h, sin_h = math.cos(half_fov), math.sin(half_fov)
     visible = []
     for i, (cx, cy, cz) in enumerate(boxes.centres):
@@ -152,43 +159,35 @@ def draw_boxes(
         if abs(lateral) * cos_h - depth * sin_h > r:
             continue  # wholly beside the field of view
         visible.append((distance, i))
-    if not visible:
-        return
     scale = float(1 << SUBPIXEL_BITS)
-    focal = np.array([k[0, 0], k[1, 1]])
-    principal = np.array([k[0, 2], k[1, 2]])
-    order = [i for _, i in sorted(visible, reverse=True)]  # farthest first
-    cams = (boxes.corners[order] - position) @ rotation.T
-    facing = (
-        np.einsum("nfk,nfk->nf", boxes.normals[order], position - boxes.face_centres[order]) > 0
-    )
-    ahead = (cams[..., 2].min(axis=1) > NEAR_M).tolist()
-    # Depths are at least NEAR_M and distances at most MAX_DRAW_DISTANCE_M, so pixel
-    # coordinates stay within a few 10⁵ and fit int32 at 1/16 pixel.
-    fixed = None
-    if any(ahead):
-        front = cams[ahead]
-        uv = front[..., :2] / front[..., 2:3] * focal + principal
-        rounded = np.round(uv * scale).astype(np.int32)
-        fixed = np.ascontiguousarray(rounded[:, _FACE_CORNERS])  # (m, 5, 4, 2) for cv2
-    row = 0
-    for n, i in enumerate(order):
+    for _, i in sorted(visible, reverse=True):  # farthest first
+        cam = []
+        for x, y, z in boxes.corners[i]:
+            x, y, z = x - px, y - py, z - pz
+            cam.append(
+                (x * rx + y * ry + z * rz, x * dx_ + y * dy_ + z * dz_, x * fx + y * fy + z * fz)
+            )
+        ahead = min(c[2] for c in cam) >= NEAR_M
         rgb = boxes.colours[i]
-        pts_all = None
-        if ahead[n]:
-            pts_all = fixed[row]
-            row += 1
-        for f, looks in enumerate(facing[n].tolist()):
-            if not looks:
-                continue
-            if pts_all is not None:
-                pts = pts_all[f]
-            else:
-                poly = _clip_near(cams[n, _FACE_CORNERS[f]])
+        for f, ((nx, ny, nz), (ox, oy, oz)) in enumerate(
+            zip(boxes.normals[i], boxes.face_centres[i], strict=True)
+        ):
+            if nx * (px - ox) + ny * (py - oy) + nz * (pz - oz) <= 0.0:
+                continue  # the face looks away from the camera
+            poly = [cam[j] for j in _FACE_INDICES[f]]
+            if not ahead:
+                poly = _clip_near(poly)
                 if len(poly) < 3:
                     continue
-                uv_f = poly[:, :2] / poly[:, 2:3] * focal + principal
-                pts = np.round(uv_f * scale).astype(np.int32)
+            # Depths are at least NEAR_M and distances at most MAX_DRAW_DISTANCE_M, so the
+            # pixel coordinates stay within a few 10⁵ and fit int32 at 1/16 pixel.
+            pts = np.array(
+                [
+                    (round((fu * a / c + cu) * scale), round((fv * b / c + cv) * scale))
+                    for a, b, c in poly
+                ],
+                dtype=np.int32,
+            )
             shade = _FACE_SHADES[f]
             if img.ndim == 2:
                 gray = shade * (0.299 * rgb[0] + 0.587 * rgb[1] + 0.114 * rgb[2])
