@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -15,6 +15,7 @@ from racing.lidar import LidarSensor
 from racing.objects import KIND_BOT, RaceObject
 from racing.params import build_params
 from racing.race import RaceConfig, RaceType
+from racing.reward import RewardFunction, RewardValueError, judge_reward, progress_reward
 from racing.rules import RaceRules, RaceTracker, Status
 from racing.sensors import CameraSensor, ReferenceCamera, ground_for, validate_sensors
 from racing.simtrace import TraceRow
@@ -26,22 +27,8 @@ ROUND_ROBIN_ADVANCE = 0.05
 """DeepRacer moves each episode's start this share of the track further on."""
 CAMERA_RESOLUTION_M = 0.005
 VIEW_RESOLUTION_M = 0.01
-REWARD_LIMIT = 1e5
-
-RewardFunction = Callable[[dict], float]
 Observation = np.ndarray | dict[str, np.ndarray]
-
-
-class RewardValueError(ValueError):
-    """The reward function returned something that is not a usable number."""
-
-
-def progress_reward(params: dict) -> float:
-    """The default reward: stay near the centre line, all wheels on the track."""
-    if not params["all_wheels_on_track"] or params["is_offtrack"]:
-        return 1e-3
-    half = params["track_width"] / 2
-    return float(max(1e-3, 1.0 - (params["distance_from_center"] / half) ** 2))
+__all__ = ["RacingEnv", "RewardValueError", "progress_reward"]
 
 
 class RacingEnv(gym.Env):
@@ -277,7 +264,7 @@ class RacingEnv(gym.Env):
             is_crashed=judged.status is Status.CRASHED,
             sim_time=self.sim_time,
         )
-        reward = self._reward(self.params)
+        reward = judge_reward(self.reward_function, self.params)
         if judged.reset:
             if self._has_objects:
                 self.world.advance(judged.penalty_s)  # the bots drive on during the penalty
@@ -413,18 +400,3 @@ class RacingEnv(gym.Env):
     def _closest_waypoint(self, loc) -> int:
         behind, ahead = self.track.closest_waypoints(loc)
         return behind if loc.fraction < 0.5 else ahead
-
-    def _reward(self, params: dict) -> float:
-        value = self.reward_function(params)
-        try:
-            reward = float(value)
-        except (TypeError, ValueError) as exc:
-            raise RewardValueError(
-                f"step {params['steps']}: the reward function returned {value!r}, not a number"
-            ) from exc
-        if not math.isfinite(reward) or abs(reward) > REWARD_LIMIT:
-            raise RewardValueError(
-                f"step {params['steps']}: the reward function returned {reward}, outside "
-                f"[-{REWARD_LIMIT:g}, {REWARD_LIMIT:g}]"
-            )
-        return reward
