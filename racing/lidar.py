@@ -10,9 +10,13 @@ What it hits: DeepRacer's tracks are flat road meshes with no walls at the LIDAR
 its beams only return from other cars and boxes; everything else, the track's borders included,
 is "no return" (``inf``), which the observation filters turn into their clipping distance. Here
 the same: a beam stops at the footprint rectangle of any box or bot car taller than the mount,
-and the track has no walls. Rectangles are cast against analytically (a slab test over 64 beams
-× the objects, in NumPy), which costs a few microseconds per object, far less than PyBullet's
-``rayTestBatch`` (which would also need the car's own body filtered out).
+and the track has no walls.
+
+Rectangles are cast against analytically (a slab test over 64 beams × the objects, in NumPy).
+Measured on one scene with 6 boxes (a machine shared with other work): 0.28 ms against 0.39 ms
+for PyBullet's ``rayTestBatch`` with the same 64 rays, the ranges agreeing within 1 mm (Bullet's
+collision margin). The observations only cast against objects within reach of their clipping
+distance, which on most steps is none: then a scan costs microseconds.
 
 Observations, as SimApp's filters make them:
 

@@ -14,6 +14,7 @@ import racing
 from racing.car import Pose
 from racing.lidar import (
     BEAM_ANGLES_RAD,
+    LIDAR_MOUNT_HEIGHT_M,
     LIDAR_MOUNT_X_M,
     LidarSensor,
     cast,
@@ -111,4 +112,28 @@ def test_the_env_lidar_sees_a_box_beside_the_start(reinvent):
     assert info["params"]["is_left_of_center"] is False
     assert obs["LIDAR"].min() < 0.5
     assert obs["FRONT_FACING_CAMERA"].shape == (120, 160, 1)
+    env.close()
+
+
+def test_cast_agrees_with_pybullets_rays_against_the_bodies(reinvent):
+    race = RaceConfig(race_type="OBJECT_AVOIDANCE", number_of_objects=6)
+    env = racing.env.RacingEnv(reinvent, race=race)
+    for progress in (8.0, 30.0, 55.0):  # a box beside or behind the car each time
+        env.reset(seed=0, options={"start_progress": progress})
+        pose = env.pose
+        ox = pose.x + math.cos(pose.yaw) * LIDAR_MOUNT_X_M
+        oy = pose.y + math.sin(pose.yaw) * LIDAR_MOUNT_X_M
+        angles = BEAM_ANGLES_RAD + pose.yaw + math.pi
+        starts = [[ox, oy, LIDAR_MOUNT_HEIGHT_M]] * 64
+        ends = [
+            [ox + 12 * math.cos(a), oy + 12 * math.sin(a), LIDAR_MOUNT_HEIGHT_M] for a in angles
+        ]
+        rays = env.sim.client.rayTestBatch(starts, ends)
+        bullet = np.array([hit[2] * 12 if hit[0] >= 0 else np.inf for hit in rays])
+        ours = cast(pose, env.objects)
+        # A beam grazing a corner may fall either side of Bullet's collision margin.
+        assert (np.isfinite(ours) != np.isfinite(bullet)).sum() <= 1
+        finite = np.isfinite(ours) & np.isfinite(bullet)
+        assert finite.sum() >= 3
+        assert ours[finite] == pytest.approx(bullet[finite], abs=2e-3)  # Bullet's margin
     env.close()
