@@ -57,7 +57,7 @@ class RacingEnv(gym.Env):
 
     **Observation space**: with a camera only, the image ``Box(0, 255, (120, 160, C), uint8)``,
     grayscale, ``C`` = 1 for the front camera and 2 for the stereo pair (left, right). With a
-    LIDAR, a ``Dict`` keyed by DeepRacer's sensor ids: the camera's id
+    LIDAR, a ``Dict`` keyed by DeepRacer's sensor ids (gymnasium sorts them): the camera's id
     (``"FRONT_FACING_CAMERA"`` or ``"STEREO_CAMERAS"``) → that image, and the LIDAR's id →
     ``"LIDAR"``: ``Box(0.15, 1.0, (64,), float32)``, ranges in metres clipped at 1 m;
     ``"SECTOR_LIDAR"``: ``Box(0, 1, (8,), float32)``, 1 where a sector has a return nearer than
@@ -179,7 +179,9 @@ class RacingEnv(gym.Env):
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode. ``options`` may set ``start_progress`` (percent of the lap),
-        ``offset`` (metres left of the centre line) and ``heading_offset_deg``."""
+        ``offset`` (metres left of the centre line; without it a start within 1 m of an object
+        is moved to the other lane) and ``heading_offset_deg``. Boxes and bots are placed
+        first, from ``np_random``."""
         super().reset(seed=seed)
         options = options or {}
         if seed is not None:

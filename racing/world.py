@@ -59,6 +59,7 @@ class RaceWorld:
         return self.fleet.objects if self.fleet is not None else self._boxes
 
     def lanes(self, track: Track) -> Lanes:
+        """The lanes of ``track`` (one driving direction), measured once."""
         lanes = self._lanes.get(id(track))
         if lanes is None:
             lanes = self._lanes[id(track)] = Lanes(track)
@@ -86,6 +87,7 @@ class RaceWorld:
             self._locate()
 
     def _locate(self) -> None:
+        """Project every object on the centre line (for params, starts and respawns)."""
         objects = self.objects
         if self.track is None or not objects:
             self.locations = ()
