@@ -107,7 +107,7 @@ class RaceWorld:
         if obj.kind != KIND_BOT or self._gap_ahead(car_s, index) > 0.0:
             return obj
         assert self.fleet is not None
-        if not self.fleet.paused:
+        if not self.fleet.paused and self.bot_pause_s > 0.0:
             self.fleet.pause(self.bot_pause_s)
         return None
 

@@ -106,7 +106,7 @@ def test_running_into_a_bot_from_behind_is_a_crash(reinvent):
 
 
 def test_a_bot_running_into_the_car_is_not_its_fault(reinvent):
-    env = bot_env(reinvent, speed=1.5)
+    env = bot_env(reinvent, speed=1.5, rules=RaceRules(bot_pause_s=2.0))
     # The car crawls 0.4 m ahead of a faster bot, in its lane: the bot drives into its back.
     offset = Lanes(reinvent).offset(2.6, 1)
     env.reset(seed=0, options={"start_progress": 100 * 2.6 / reinvent.length, "offset": offset})
