@@ -174,3 +174,49 @@ def test_a_scripted_driver_avoids_six_boxes_for_three_clean_laps(reinvent):
     assert len(laps) == 3
     assert all(lap.crashes == 0 and lap.off_tracks == 0 and lap.resets == 0 for lap in laps)
     env.close()
+
+
+def test_evaluation_crash_into_a_bot_freezes_the_car_where_it_is(reinvent):
+    env = bot_env(reinvent, rules=RaceRules(resets=3, crash_penalty_s=5.0))
+    offset = Lanes(reinvent).offset(1.0, 1)
+    env.reset(seed=0, options={"start_progress": 100 * 1.0 / reinvent.length, "offset": offset})
+    for _ in range(120):
+        bot_before = env.world.locations[0].s
+        *_, terminated, _, info = env.step(STRAIGHT)
+        if info["reset"]:
+            break
+    assert info["status"] == "crashed" and not terminated and info["penalty_s"] == 5.0
+    # The car stays where it hit the bot, at rest; the bot drove on for the 5 s penalty.
+    assert reinvent.locate(*env._point).s == pytest.approx(info["params"]["projection_distance"])
+    assert env.sim.pose().speed == pytest.approx(0.0, abs=1e-6)
+    assert env.world.locations[0].s - bot_before == pytest.approx(0.3 * (5.0 + 1 / 15), abs=0.03)
+    *_, terminated, _, info = env.step(STRAIGHT)
+    assert info["status"] == "in_progress"
+    env.close()
+
+
+def test_bots_change_lane_within_the_configured_interval(reinvent):
+    race = RaceConfig(
+        race_type="HEAD_TO_BOT",
+        number_of_bots=1,
+        bot_lane_change=True,
+        lane_change_min_s=2.0,
+        lane_change_max_s=3.0,
+        bot_speed=1.0,
+    )
+    env = RacingEnv(reinvent, race=race)
+    env.reset(seed=4)
+    fleet = env.world.fleet
+    changes = []
+    lane = fleet.bots[0].lane
+    for step in range(1, 15 * 20):
+        env.world.advance(1 / 15)
+        if fleet.bots[0].target != lane:
+            changes.append(step / 15)
+            lane = fleet.bots[0].target
+    # A change starts 2-3 s after the previous one ended; each lasts 1 m at 1 m/s.
+    waits = np.diff([0.0, *changes])
+    assert len(changes) >= 5
+    assert waits[0] == pytest.approx(2.5, abs=0.55)
+    assert all(3.0 - 0.1 <= w <= 4.0 + 0.1 for w in waits[1:])
+    env.close()
