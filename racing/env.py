@@ -157,7 +157,7 @@ class RacingEnv(gym.Env):
                 {self.sensors[0]: image_space, self.sensors[1]: self.lidar.space}
             )
         self.sim = CarSim(substeps=substeps)
-        self.world = RaceWorld(self.sim, self.race, bot_pause_s=self.rules.bot_pause())
+        self.world = RaceWorld(self.sim, self.race, self.rules)
         if self._has_objects:  # fail now, not at the first reset, if they cannot fit
             self.world.reset(self.track, np.random.default_rng(0))
         if camera_backend == "pybullet":

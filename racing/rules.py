@@ -75,6 +75,8 @@ class RaceRules:
     is not at fault; SimApp's ``PENALTY_SECONDS``). ``None`` is SimApp's default: 2 s when
     resets are allowed (evaluation), 0 in training. Running into a bot from behind is a crash
     like hitting a box and costs ``crash_penalty_s``.
+    ``mercy_resets``: after this many respawns in a row behind the same box, the car is put
+    past it instead (SimApp's optional mercy reset, 3 when enabled there); ``None`` is off.
     """
 
     laps: int = 1
@@ -88,6 +90,7 @@ class RaceRules:
     lap_time_limit_s: float | None = None
     stall_s: float | None = 10.0
     bot_pause_s: float | None = None
+    mercy_resets: int | None = None
 
     def __post_init__(self) -> None:
         if self.laps < 1:
@@ -99,6 +102,8 @@ class RaceRules:
                 raise ValueError(f"{name} cannot be negative")
         if self.bot_pause_s is not None and self.bot_pause_s < 0:
             raise ValueError("bot_pause_s cannot be negative")
+        if self.mercy_resets is not None and self.mercy_resets < 1:
+            raise ValueError("mercy_resets must be at least 1 (or None for no mercy)")
         if self.max_steps < 1:
             raise ValueError("max_steps must be at least 1")
 

@@ -10,7 +10,8 @@ DeepRacer's rules (SimApp's ``rollout_agent_ctrl`` and ``bot_cars_agent_ctrl``):
 - A car that starts an episode within :data:`CLOSEST_OBJECT_GAP_M` of an object starts in the
   other lane.
 - A car respawned within :data:`CLOSEST_OBJECT_GAP_M` of a box is put
-  :data:`RESET_BEHIND_M` behind it, in the other lane.
+  :data:`RESET_BEHIND_M` behind it, in the other lane (optionally, after a number of such
+  respawns in a row at the same box, :data:`RESET_AHEAD_M` past it: the "mercy reset").
 """
 
 from __future__ import annotations
@@ -23,12 +24,15 @@ from racing.bodies import ObjectBodies
 from racing.car import CarSim
 from racing.objects import KIND_BOT, BotFleet, Lanes, RaceObject, place_boxes
 from racing.race import RaceConfig
+from racing.rules import RaceRules
 from racing.track import Location, Track
 
 CLOSEST_OBJECT_GAP_M = 1.0
 """An object this close along the centre line moves a start or a respawn, metres."""
 RESET_BEHIND_M = 1.0
 """A car respawned near a box is put this far behind it, metres."""
+RESET_AHEAD_M = 1.0
+"""A mercy reset puts the car this far past the box it is stuck behind, metres."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,9 +46,12 @@ class Spot:
 class RaceWorld:
     """This env's boxes or bot cars, in the car's PyBullet world."""
 
-    def __init__(self, sim: CarSim, config: RaceConfig, *, bot_pause_s: float) -> None:
+    def __init__(self, sim: CarSim, config: RaceConfig, rules: RaceRules) -> None:
         self.config = config
-        self.bot_pause_s = bot_pause_s
+        self.bot_pause_s = rules.bot_pause()
+        self.mercy_resets = rules.mercy_resets
+        self._stuck: tuple[int | None, int] = (None, 0)
+        """The box the last respawns were behind, and how many in a row."""
         self.bodies = ObjectBodies(sim)
         self._lanes: dict[int, Lanes] = {}
         self._boxes: tuple[RaceObject, ...] = ()
@@ -72,6 +79,7 @@ class RaceWorld:
         lanes = self.lanes(track)
         self.fleet = None
         self._boxes = ()
+        self._stuck = (None, 0)
         if self.config.has_boxes:
             self._boxes = place_boxes(track, lanes, self.config, rng)
         elif self.config.has_bots:
@@ -146,12 +154,20 @@ class RaceWorld:
         return None if index is None else self._other_lane(index, s)
 
     def respawn_spot(self, s: float) -> Spot | None:
-        """Where a car respawning at ``s`` goes when a box is close, else ``None``."""
+        """Where a car respawning at ``s`` goes when a box is close, else ``None``.
+
+        With :attr:`mercy_resets` set, the car respawned that many times in a row at the same
+        box is put :data:`RESET_AHEAD_M` past it instead (SimApp's optional mercy reset).
+        """
         index = self._nearest(s, boxes_only=True)
         if index is None:
             return None
         assert self.track is not None
+        self._stuck = (index, self._stuck[1] + 1 if self._stuck[0] == index else 1)
         spot_s = self.locations[index].s - RESET_BEHIND_M
+        if self.mercy_resets is not None and self._stuck[1] >= self.mercy_resets:
+            spot_s = self.locations[index].s + RESET_AHEAD_M
+            self._stuck = (None, 0)
         if self.track.closed:
             spot_s %= self.track.length
         return Spot(spot_s, self._other_lane(index, spot_s))

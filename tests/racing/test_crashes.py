@@ -220,3 +220,19 @@ def test_bots_change_lane_within_the_configured_interval(reinvent):
     assert waits[0] == pytest.approx(2.5, abs=0.55)
     assert all(3.0 - 0.1 <= w <= 4.0 + 0.1 for w in waits[1:])
     env.close()
+
+
+def test_mercy_reset_puts_the_car_past_a_box_it_keeps_hitting(reinvent):
+    env = box_env(reinvent, rules=RaceRules(resets=10, mercy_resets=3))
+    env.reset(seed=0)
+    box_s = env.world.locations[0].s
+    spots = [env.world.respawn_spot(box_s - 0.3).s for _ in range(4)]
+    assert spots == pytest.approx([box_s - 1.0, box_s - 1.0, box_s + 1.0, box_s - 1.0])
+    assert env.world.respawn_spot(box_s + 3.0) is None  # no box within 1 m: the usual respawn
+    plain = box_env(reinvent, rules=RaceRules(resets=10))
+    plain.reset(seed=0)
+    assert [plain.world.respawn_spot(box_s - 0.3).s for _ in range(4)] == pytest.approx(
+        [box_s - 1.0] * 4
+    )
+    with pytest.raises(ValueError, match="mercy_resets must be at least 1"):
+        RaceRules(mercy_resets=0)
