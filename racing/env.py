@@ -247,7 +247,7 @@ class RacingEnv(gym.Env):
         self._hint = loc.segment
         wheels = self._wheels_on_track()
         moved = math.hypot(self._point[0] - old_point[0], self._point[1] - old_point[1])
-        crash = self.world.crash(loc.s) if self._has_objects else None
+        crash = self.world.crash(loc.s, (self.pose.x, self.pose.y)) if self._has_objects else None
         judged = self.tracker.update(
             s=loc.s,
             dt=self.sim.dt,

@@ -16,6 +16,7 @@ DeepRacer's rules (SimApp's ``rollout_agent_ctrl`` and ``bot_cars_agent_ctrl``):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,8 @@ CLOSEST_OBJECT_GAP_M = 1.0
 """An object this close along the centre line moves a start or a respawn, metres."""
 RESET_BEHIND_M = 1.0
 """A car respawned near a box is put this far behind it, metres."""
+CAR_REACH_M = 0.4
+"""Every part of the car lies within this distance of its origin (rear-axle middle), metres."""
 RESET_AHEAD_M = 1.0
 """A mercy reset puts the car this far past the box it is stuck behind, metres."""
 
@@ -104,10 +107,17 @@ class RaceWorld:
         ys = [o.y for o in objects]
         self.locations = tuple(self.track.locate_all(xs, ys))
 
-    def crash(self, car_s: float) -> RaceObject | None:
+    def crash(self, car_s: float, car_xy: tuple[float, float]) -> RaceObject | None:
         """The object the car crashed into in the last physics step by DeepRacer's rules, or
         ``None``; a bot that hit the car from behind is paused instead. ``car_s`` is the car's
-        reported point along the centre line, metres."""
+        reported point along the centre line and ``car_xy`` its origin, metres. PyBullet is
+        asked for contacts only when an object is within reach of the car."""
+        x, y = car_xy
+        if all(
+            math.hypot(o.x - x, o.y - y) > CAR_REACH_M + math.hypot(o.length, o.width) / 2
+            for o in self.objects
+        ):
+            return None
         index = self.bodies.touching()
         if index is None:
             return None
