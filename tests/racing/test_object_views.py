@@ -86,3 +86,19 @@ def test_the_video_shows_boxes_and_bots(reinvent):
     bots.reset(seed=0)
     frame = bots.render().astype(int)
     assert (np.abs(frame - np.array([60, 110, 220])).sum(axis=2) < 30).sum() > 4
+
+
+def test_a_time_trial_never_touches_the_object_machinery(reinvent, monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("object code ran in a time trial")
+
+    monkeypatch.setattr("racing.sensors.draw_boxes", refuse)
+    monkeypatch.setattr("racing.world.RaceWorld.crash", refuse)
+    monkeypatch.setattr("racing.world.RaceWorld.advance", refuse)
+    monkeypatch.setattr("racing.world.RaceWorld.reset", refuse)
+    env = RacingEnv(reinvent, sensors=["STEREO_CAMERAS"])
+    obs, _ = env.reset(seed=0)
+    for _ in range(30):
+        obs, *_ = env.step(5)
+    assert isinstance(obs, np.ndarray) and obs.shape == (120, 160, 2)
+    assert env.objects == ()
