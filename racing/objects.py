@@ -85,6 +85,19 @@ class Lanes:
         nxt = (seg + 1) % len(half)
         return self._sign[lane] * float(half[seg] * (1 - frac) + half[nxt] * frac)
 
+    def offsets(self, s: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+        """:meth:`offset` for many distances (metres) and lanes (±1) at once."""
+        seg, frac = self.track.stations(s)
+        nxt = (seg + 1) % len(self._half[LANE_INNER])
+        inner = np.where(lanes == LANE_INNER, 1.0, 0.0)
+        half = inner * (
+            self._half[LANE_INNER][seg] * (1 - frac) + self._half[LANE_INNER][nxt] * frac
+        ) + (1.0 - inner) * (
+            self._half[LANE_OUTER][seg] * (1 - frac) + self._half[LANE_OUTER][nxt] * frac
+        )
+        sign = np.where(lanes == LANE_INNER, self._sign[LANE_INNER], self._sign[LANE_OUTER])
+        return sign * half
+
     def point(self, s: float, lane: int) -> tuple[float, float]:
         return self.track.point_at(s, self.offset(s, lane))
 
@@ -138,12 +151,6 @@ def place_boxes(
         x, y = lanes.point(s, lane)
         boxes.append(RaceObject(x, y, heading=track.heading_at(s)))
     return tuple(boxes)
-
-
-def smoothstep(t: float) -> float:
-    """0 → 0 and 1 → 1 with zero slope at both ends, for a lane change without a kink."""
-    t = min(1.0, max(0.0, t))
-    return t * t * (3.0 - 2.0 * t)
 
 
 @dataclass
@@ -212,32 +219,33 @@ class BotFleet:
                 bot.change_start_m = self.travelled_m
         self.objects = self._poses()
 
-    def _offset(self, bot: _Bot, s: float) -> tuple[float, float]:
-        """The bot's offset (metres left of the centre line) at ``s`` and its slope (m/m)."""
-        here = self.lanes.offset(s, bot.lane)
-        if bot.target == bot.lane:
-            return here, 0.0
-        done = (self.travelled_m - bot.change_start_m) / LANE_CHANGE_DISTANCE_M
-        shift = self.lanes.offset(s, bot.target) - here
-        slope = shift * 6.0 * done * (1.0 - done) / LANE_CHANGE_DISTANCE_M  # d smoothstep / ds
-        return here + shift * smoothstep(done), slope
-
     def _poses(self) -> tuple[RaceObject, ...]:
-        poses = []
-        for bot in self.bots:
-            s = (bot.start_s + self.travelled_m) % self.track.length
-            offset, slope = self._offset(bot, s)
-            x, y = self.track.point_at(s, offset)
-            poses.append(
-                RaceObject(
-                    x,
-                    y,
-                    heading=self.track.heading_at(s) + math.atan(slope),
-                    speed=self.config.bot_speed,
-                    length=BOT_LENGTH_M,
-                    width=BOT_WIDTH_M,
-                    height=BOT_HEIGHT_M,
-                    kind=KIND_BOT,
-                )
+        """Every bot's pose now, computed for all of them at once."""
+        s = np.array([bot.start_s for bot in self.bots]) + self.travelled_m
+        lane = np.array([bot.lane for bot in self.bots])
+        target = np.array([bot.target for bot in self.bots])
+        here = self.lanes.offsets(s, lane)
+        shift = self.lanes.offsets(s, target) - here  # 0 unless changing lane
+        done = np.clip(
+            (self.travelled_m - np.array([bot.change_start_m for bot in self.bots]))
+            / LANE_CHANGE_DISTANCE_M,
+            0.0,
+            1.0,
+        )
+        eased = done * done * (3.0 - 2.0 * done)  # smoothstep: no kink entering or leaving
+        slope = shift * 6.0 * done * (1.0 - done) / LANE_CHANGE_DISTANCE_M  # its derivative
+        xs, ys, headings = self.track.points_at(s, here + shift * eased)
+        headings = headings + np.arctan(slope)
+        return tuple(
+            RaceObject(
+                x,
+                y,
+                heading=h,
+                speed=self.config.bot_speed,
+                length=BOT_LENGTH_M,
+                width=BOT_WIDTH_M,
+                height=BOT_HEIGHT_M,
+                kind=KIND_BOT,
             )
-        return tuple(poses)
+            for x, y, h in zip(xs.tolist(), ys.tolist(), headings.tolist(), strict=True)
+        )

@@ -23,9 +23,9 @@ import numpy as np
 import pybullet as pb
 
 from racing.car import Pose
-from racing.drawing import BoxSet, draw_boxes
+from racing.drawing import MAX_DRAW_DISTANCE_M, BoxSet, draw_boxes
 from racing.lidar import SENSOR_DISCRETIZED_LIDAR, SENSOR_LIDAR, SENSOR_SECTOR_LIDAR
-from racing.objects import RaceObject
+from racing.objects import KIND_BOT, RaceObject
 from racing.texture import GroundTexture, render_ground
 from racing.track import Track
 
@@ -240,16 +240,20 @@ class CameraSensor:
             raise SensorError(f"{kind!r} is not a camera")
         self.shape = (CAMERA_HEIGHT, CAMERA_WIDTH, len(self.cameras))
         self._drawn: tuple[Sequence[RaceObject], BoxSet | None] = ((), None)
+        """The last objects drawn (static boxes are the same tuple all episode), as a BoxSet."""
 
     def observe(self, pose: Pose, objects: Sequence[RaceObject] = ()) -> np.ndarray:
         """The observation ``(120, 160, C)`` uint8 at ``pose`` with ``objects`` in view."""
         frames = [cam.render(pose) for cam in self.cameras]
         if objects:
             if objects is not self._drawn[0]:  # static boxes: the same tuple all episode
-                self._drawn = (objects, BoxSet.of(objects))
+                if any(o.kind == KIND_BOT for o in objects):
+                    objects = [o for o in objects if _maybe_in_view(pose, o)]  # moving: now
+                self._drawn = (objects, BoxSet.of(objects) if objects else None)
             boxes = self._drawn[1]
-            for cam, frame in zip(self.cameras, frames, strict=True):
-                cam.draw(frame, pose, boxes)
+            if boxes is not None:
+                for cam, frame in zip(self.cameras, frames, strict=True):
+                    cam.draw(frame, pose, boxes)
         if len(frames) == 1:
             return frames[0][..., None]
         return np.stack(frames, axis=-1)
@@ -257,6 +261,15 @@ class CameraSensor:
     def sees(self, pose: Pose, obj: RaceObject) -> bool:
         """Whether any lens has ``obj`` in its frustum."""
         return any(cam.sees(pose, obj) for cam in self.cameras)
+
+
+def _maybe_in_view(pose: Pose, obj: RaceObject) -> bool:
+    """False only for an object no front camera can see: behind the lenses or beyond the
+    drawing distance (a cheap first cut for objects that move every step)."""
+    dx, dy = obj.x - pose.x, obj.y - pose.y
+    radius = math.hypot(obj.length, obj.width, obj.height) / 2
+    ahead = dx * math.cos(pose.yaw) + dy * math.sin(pose.yaw)
+    return ahead > CAMERA_X_M - radius and math.hypot(dx, dy) < MAX_DRAW_DISTANCE_M + radius
 
 
 _ground_cache: dict[tuple[int, float, bool], GroundTexture] = {}

@@ -383,6 +383,27 @@ class Track:
             y += offset * math.cos(h)
         return float(x), float(y)
 
+    def stations(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Segment indices and fractions along them for distances ``s`` (metres), vectorised;
+        a loop wraps ``s``, an open route clamps it."""
+        s = np.mod(s, self.length) if self.closed else np.clip(s, 0.0, self.length)
+        seg = np.clip(
+            np.searchsorted(self.cumulative, s, side="right") - 1, 0, self.num_segments - 1
+        )
+        frac = (s - self.cumulative[seg]) / np.maximum(self._seg_len[seg], 1e-12)
+        return seg, frac
+
+    def points_at(
+        self, s: np.ndarray, offsets: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`point_at` for many distances and offsets at once: ``x``, ``y`` (metres) and
+        the centre line's heading there (radians)."""
+        seg, frac = self.stations(s)
+        heading = self._seg_heading[seg]
+        x = self._seg_start[seg, 0] + frac * self._seg_vec[seg, 0] - offsets * np.sin(heading)
+        y = self._seg_start[seg, 1] + frac * self._seg_vec[seg, 1] + offsets * np.cos(heading)
+        return x, y, heading
+
     @cached_property
     def curvature(self) -> np.ndarray:
         """Unsigned curvature at each waypoint (1/m), smoothed over about half a metre."""

@@ -102,3 +102,15 @@ def test_a_time_trial_never_touches_the_object_machinery(reinvent, monkeypatch):
         obs, *_ = env.step(5)
     assert isinstance(obs, np.ndarray) and obs.shape == (120, 160, 2)
     assert env.objects == ()
+
+
+def test_the_camera_shows_a_bot_ahead_and_not_one_behind(reinvent):
+    race = RaceConfig(race_type="HEAD_TO_BOT", number_of_bots=1)  # 2 m along, inner lane
+    envs = (
+        RacingEnv(reinvent, race=race, start="start_line"),
+        RacingEnv(reinvent, start="start_line"),
+    )
+    with_bot, without = reset_both(envs, 0.8, offset=Lanes(reinvent).offset(0.8, 1))
+    assert (with_bot != without).sum() > 100
+    with_bot, without = reset_both(envs, 3.4, offset=0.0)  # past the bot, which is behind
+    assert np.array_equal(with_bot, without)
