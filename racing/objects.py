@@ -73,6 +73,7 @@ class Lanes:
             inner_left = track.locate(*track.inner[mid]).left
         self._sign = {LANE_INNER: 1.0 if inner_left else -1.0}
         self._sign[LANE_OUTER] = -self._sign[LANE_INNER]
+        self._signed = {lane: self._sign[lane] * half for lane, half in self._half.items()}
 
     def offset(self, s: float, lane: int) -> float:
         """How far left of the centre line lane ``lane`` runs at ``s`` metres, metres."""
@@ -85,18 +86,13 @@ class Lanes:
         nxt = (seg + 1) % len(half)
         return self._sign[lane] * float(half[seg] * (1 - frac) + half[nxt] * frac)
 
-    def offsets(self, s: np.ndarray, lanes: np.ndarray) -> np.ndarray:
-        """:meth:`offset` for many distances (metres) and lanes (±1) at once."""
-        seg, frac = self.track.stations(s)
-        nxt = (seg + 1) % len(self._half[LANE_INNER])
-        inner = np.where(lanes == LANE_INNER, 1.0, 0.0)
-        half = inner * (
-            self._half[LANE_INNER][seg] * (1 - frac) + self._half[LANE_INNER][nxt] * frac
-        ) + (1.0 - inner) * (
-            self._half[LANE_OUTER][seg] * (1 - frac) + self._half[LANE_OUTER][nxt] * frac
-        )
-        sign = np.where(lanes == LANE_INNER, self._sign[LANE_INNER], self._sign[LANE_OUTER])
-        return sign * half
+    def offsets(self, seg: np.ndarray, frac: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+        """:meth:`offset` for many places at once, given as segment indices and fractions along
+        them (:meth:`Track.stations`) and lanes (±1)."""
+        nxt = (seg + 1) % len(self._signed[LANE_INNER])
+        inner = self._signed[LANE_INNER][seg] * (1 - frac) + self._signed[LANE_INNER][nxt] * frac
+        outer = self._signed[LANE_OUTER][seg] * (1 - frac) + self._signed[LANE_OUTER][nxt] * frac
+        return np.where(lanes == LANE_INNER, inner, outer)
 
     def point(self, s: float, lane: int) -> tuple[float, float]:
         return self.track.point_at(s, self.offset(s, lane))
@@ -222,10 +218,11 @@ class BotFleet:
     def _poses(self) -> tuple[RaceObject, ...]:
         """Every bot's pose now, computed for all of them at once."""
         s = np.array([bot.start_s for bot in self.bots]) + self.travelled_m
+        seg, frac = self.track.stations(s)
         lane = np.array([bot.lane for bot in self.bots])
         target = np.array([bot.target for bot in self.bots])
-        here = self.lanes.offsets(s, lane)
-        shift = self.lanes.offsets(s, target) - here  # 0 unless changing lane
+        here = self.lanes.offsets(seg, frac, lane)
+        shift = self.lanes.offsets(seg, frac, target) - here  # 0 unless changing lane
         done = np.clip(
             (self.travelled_m - np.array([bot.change_start_m for bot in self.bots]))
             / LANE_CHANGE_DISTANCE_M,
@@ -234,7 +231,7 @@ class BotFleet:
         )
         eased = done * done * (3.0 - 2.0 * done)  # smoothstep: no kink entering or leaving
         slope = shift * 6.0 * done * (1.0 - done) / LANE_CHANGE_DISTANCE_M  # its derivative
-        xs, ys, headings = self.track.points_at(s, here + shift * eased)
+        xs, ys, headings = self.track.points_at(seg, frac, here + shift * eased)
         headings = headings + np.arctan(slope)
         return tuple(
             RaceObject(

@@ -394,11 +394,10 @@ class Track:
         return seg, frac
 
     def points_at(
-        self, s: np.ndarray, offsets: np.ndarray
+        self, seg: np.ndarray, frac: np.ndarray, offsets: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`point_at` for many distances and offsets at once: ``x``, ``y`` (metres) and
-        the centre line's heading there (radians)."""
-        seg, frac = self.stations(s)
+        """:meth:`point_at` for many places at once, given by :meth:`stations`, shifted
+        ``offsets`` metres left: ``x``, ``y`` (metres) and the centre line's heading (radians)."""
         heading = self._seg_heading[seg]
         x = self._seg_start[seg, 0] + frac * self._seg_vec[seg, 0] - offsets * np.sin(heading)
         y = self._seg_start[seg, 1] + frac * self._seg_vec[seg, 1] + offsets * np.cos(heading)

@@ -174,3 +174,18 @@ def test_closest_objects_wrap_like_deepracer():
 
 def test_a_box_is_the_deepracer_package():
     assert pytest.approx(15.25 * 0.0254) == BOX_WIDTH_M
+
+
+def test_vectorised_places_match_the_scalar_ones(reinvent):
+    s = np.array([0.0, 3.3, 9.1, reinvent.length + 1.0])
+    offsets = np.array([0.1, -0.2, 0.0, 0.15])
+    seg, frac = reinvent.stations(s)
+    xs, ys, headings = reinvent.points_at(seg, frac, offsets)
+    for i in range(len(s)):
+        assert (xs[i], ys[i]) == pytest.approx(reinvent.point_at(s[i], offsets[i]), abs=1e-12)
+        assert headings[i] == pytest.approx(reinvent.heading_at(s[i] % reinvent.length))
+    lanes = Lanes(reinvent)
+    chosen = np.array([1, -1, -1, 1])
+    vector = lanes.offsets(seg, frac, chosen)
+    scalar = [lanes.offset(v, int(c)) for v, c in zip(s, chosen, strict=True)]
+    assert vector == pytest.approx(scalar, abs=1e-12)
