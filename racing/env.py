@@ -173,7 +173,6 @@ class RacingEnv(gym.Env):
         self._view = None
         self._hint: int | None = None
         self._point = (0.0, 0.0)
-        self._last_action: tuple[float, float] = (0.0, 0.0)
         self.params: dict = {}
 
     # ------------------------------------------------------------------ gym API
@@ -213,7 +212,6 @@ class RacingEnv(gym.Env):
         self.tracker = RaceTracker(self.rules, self.track.length, self.track.closed)
         self.tracker.start(loc.s)
         self.sim_time = 0.0
-        self._last_action = (0.0, 0.0)
         self.params = self._params(
             loc=loc,
             wheels_on_track=self._wheels_on_track(),
@@ -237,7 +235,6 @@ class RacingEnv(gym.Env):
         if self.episode < 0:
             raise RuntimeError("call reset() before step()")
         steering, speed = self.actions.decode(action)
-        self._last_action = (steering, speed)
         old_point = self._point
         if self._has_objects:
             self.world.advance(self.sim.dt)  # bots move first: contacts come from this step

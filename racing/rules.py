@@ -337,10 +337,3 @@ class RaceTracker:
         lap.time_s = self.sim_time - self.lap_start_time
         lap.progress = self.progress
         return Judgement(status, not truncated, truncated, False, 0.0, False)
-
-    def unfinished_lap(self) -> LapRecord | None:
-        """The lap in progress when the episode ended without finishing it, if any."""
-        lap = self._lap
-        if lap is None or lap.status in (Status.IN_PROGRESS,) or lap in self.laps:
-            return None
-        return lap
