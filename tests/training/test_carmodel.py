@@ -25,7 +25,7 @@ from training.interchange.carmodel import (
     input_name,
     output_name,
 )
-from training.interchange.export import checkpoint_bytes
+from training.interchange.export import ARCHIVE_MTIME, checkpoint_bytes
 from training.interchange.tfgraph import parse_graph
 from training.rl.policies import AWS_SHALLOW, LEAN, SHALLOW, STANDARD
 
@@ -126,6 +126,9 @@ def test_car_archive_has_one_pb_and_the_metadata_at_the_root(ppo_discrete) -> No
     assert meta[RACECRAFT_NETWORK_KEY] == LEAN
     assert meta["sensor"] == ["FRONT_FACING_CAMERA"]
     assert meta["action_space"] == ppo_discrete.metadata.to_json()["action_space"]
+    with tarfile.open(fileobj=io.BytesIO(archive), mode="r:gz") as tar:
+        infos = tar.getmembers()
+    assert all(i.mtime == ARCHIVE_MTIME and i.mode == 0o644 and i.uid == 0 for i in infos)
     from_zip = build_car_archive(ppo_discrete.metadata, checkpoint_bytes(ppo_discrete.model))
     assert from_zip == archive  # deterministic, and the same from the stored checkpoint
 
