@@ -70,7 +70,9 @@ def run_tensorflow(
     graph_def.ParseFromString(graph)
     with tf.Graph().as_default() as g:
         tf.compat.v1.import_graph_def(graph_def, name="")
-        with tf.compat.v1.Session(graph=g) as session:
+        # AWS-trained graphs pin their ops to /device:GPU:0; let TensorFlow place them on the CPU
+        config = tf.compat.v1.ConfigProto(allow_soft_placement=True)
+        with tf.compat.v1.Session(graph=g, config=config) as session:
             return session.run(f"{output_name}:0", {f"{input_name}:0": frames.astype(np.float32)})
 
 

@@ -159,3 +159,116 @@ def const_value(node: node_def_pb2.NodeDef) -> np.ndarray:
         return tensor_util.make_ndarray(node.attr["value"].tensor)
     except Exception as exc:  # a malformed TensorProto
         raise GraphError(f"{node.name}: unreadable constant ({exc})") from None
+
+
+def _strided_slice(x: np.ndarray, begin: np.ndarray, end: np.ndarray, node) -> np.ndarray:
+    """The one form frozen DeepRacer graphs use: a slice on axis 0, maybe shrinking it."""
+    if len(begin) != 1 or node.attr["ellipsis_mask"].i or node.attr["new_axis_mask"].i:
+        raise GraphError(f"{node.name}: unsupported StridedSlice")
+    start = 0 if node.attr["begin_mask"].i & 1 else int(begin[0])
+    stop = x.shape[0] if node.attr["end_mask"].i & 1 else int(end[0])
+    return x[start] if node.attr["shrink_axis_mask"].i & 1 else x[start:stop]
+
+
+def _conv2d(x: np.ndarray, kernel: np.ndarray, node) -> np.ndarray:
+    import torch
+
+    stride = list(node.attr["strides"].list.i)
+    if node.attr["padding"].s != b"VALID" or node.attr["data_format"].s not in (b"", b"NHWC"):
+        raise GraphError(f"{node.name}: only VALID, NHWC convolutions are supported")
+    out = torch.nn.functional.conv2d(
+        torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2))),
+        torch.from_numpy(np.ascontiguousarray(kernel.transpose(3, 2, 0, 1))),
+        stride=(stride[1], stride[2]),
+    )
+    return out.numpy().transpose(0, 2, 3, 1)
+
+
+def _avg_pool(x: np.ndarray, node) -> np.ndarray:
+    size, stride = list(node.attr["ksize"].list.i), list(node.attr["strides"].list.i)
+    if size != stride or size[0] != 1 or size[3] != 1 or size[1] != size[2]:
+        raise GraphError(f"{node.name}: only square, non-overlapping pooling is supported")
+    k = size[1]
+    n, h, w, c = x.shape
+    x = x[:, : h // k * k, : w // k * k]
+    return x.reshape(n, h // k, k, w // k, k, c).mean(axis=(2, 4))
+
+
+_BINARY = {
+    "RealDiv": np.divide,
+    "Sub": np.subtract,
+    "Mul": np.multiply,
+    "Add": np.add,
+    "AddV2": np.add,
+    "Maximum": np.maximum,
+    "Minimum": np.minimum,
+    "BiasAdd": np.add,
+}
+
+
+def _softmax(x: np.ndarray) -> np.ndarray:
+    e = np.exp(x - x.max(axis=-1, keepdims=True))
+    return e / e.sum(axis=-1, keepdims=True)
+
+
+def run_graph(graph: graph_pb2.GraphDef, feeds: dict[str, np.ndarray], output: str) -> np.ndarray:
+    """Evaluate ``output`` of a small inference graph with numpy (float32), no TensorFlow.
+
+    Covers the ops of DeepRacer's and Racecraft's policy graphs (those of :class:`GraphWriter`
+    plus Identity, StopGradient, Shape, StridedSlice and Pack); ``feeds`` maps placeholder
+    names to arrays. Raises :class:`GraphError` for any other op or a missing node.
+    """
+    nodes = {node.name: node for node in graph.node}
+    values: dict[str, np.ndarray] = {}
+    visiting: set[str] = set()
+
+    def value(name: str) -> np.ndarray:
+        name = name.split(":")[0]
+        if name in values:
+            return values[name]
+        node = nodes.get(name)
+        if node is None:
+            raise GraphError(f"the graph has no node {name}")
+        if name in visiting:
+            raise GraphError(f"{name}: the graph has a cycle")
+        visiting.add(name)
+        args = [value(i) for i in node.input if not i.startswith("^")]
+        op = node.op
+        if op == "Placeholder":
+            if name not in feeds:
+                raise GraphError(f"no value fed for the input {name}")
+            result = np.asarray(feeds[name], np.float32)
+        elif op == "Const":
+            result = const_value(node)
+        elif op in ("Identity", "StopGradient"):
+            result = args[0]
+        elif op in _BINARY:
+            result = _BINARY[op](args[0], args[1])
+        elif op == "Relu":
+            result = np.maximum(args[0], 0)
+        elif op == "Tanh":
+            result = np.tanh(args[0])
+        elif op == "Softmax":
+            result = _softmax(args[0])
+        elif op == "MatMul":
+            a, b = args
+            a = a.T if node.attr["transpose_a"].b else a
+            result = a @ (b.T if node.attr["transpose_b"].b else b)
+        elif op == "Conv2D":
+            result = _conv2d(*args, node)
+        elif op == "AvgPool":
+            result = _avg_pool(args[0], node)
+        elif op == "Reshape":
+            result = args[0].reshape([int(d) for d in np.atleast_1d(args[1])])
+        elif op == "Shape":
+            result = np.asarray(args[0].shape, np.int32)
+        elif op == "StridedSlice":
+            result = _strided_slice(args[0], args[1], args[2], node)
+        elif op == "Pack":
+            result = np.stack(args, axis=int(node.attr["axis"].i))
+        else:
+            raise GraphError(f"{name}: the op {op} is not supported")
+        values[name] = np.asarray(result)
+        return values[name]
+
+    return value(output)
