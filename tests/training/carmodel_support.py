@@ -9,7 +9,7 @@ import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from torch import nn
 
-from training.interchange.export import new_model
+from training.interchange.export import BoxPolicy, DiscretePolicy, new_model
 from training.rl.metadata import ModelMetadata, build_metadata
 
 CONTINUOUS = {"steering_angle": {"low": -25.0, "high": 20.0}, "speed": {"low": 0.5, "high": 3.0}}
@@ -48,10 +48,8 @@ def stereo(frames: np.ndarray) -> np.ndarray:
 
 def torch_outputs(model: BaseAlgorithm, frames_nhwc: np.ndarray) -> np.ndarray:
     """What the car graph must give: softmax probabilities, or the action in -1..1."""
-    from training.interchange.export import _BoxPolicy, _DiscretePolicy
-
     discrete = hasattr(model.action_space, "n")
-    wrapper = _DiscretePolicy(model.policy) if discrete else _BoxPolicy(model)
+    wrapper = DiscretePolicy(model.policy) if discrete else BoxPolicy(model)
     with torch.no_grad():
         out = wrapper(torch.as_tensor(frames_nhwc.transpose(0, 3, 1, 2), dtype=torch.float32))
     out = out.numpy()

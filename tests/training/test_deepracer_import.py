@@ -9,6 +9,7 @@ import tarfile
 
 import numpy as np
 import pytest
+import torch
 
 from tests.training.carmodel_support import (
     metadata_for,
@@ -188,3 +189,33 @@ def test_model_folder_needs_a_graph(car_files) -> None:
         import_deepracer_model(tar_gz({**base, "model/5_Step-100.ckpt.index": b"x"}))
     with pytest.raises(ArchiveError, match="reward_function.py is missing"):
         import_deepracer_model(tar_gz({k: v for k, v in base.items() if "reward" not in k}))
+
+
+def test_imported_model_clones_for_training(car_files) -> None:
+    """Training a clone builds the network by name and loads the imported checkpoint into it."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from racing.env import RacingEnv
+    from training.rl.algorithms import load_model
+    from training.rl.hyperparams import parse_hyperparameters
+
+    imported = import_car_archive(tar_gz(car_files))
+    meta = imported.metadata
+    env = DummyVecEnv(
+        [lambda: RacingEnv("racecraft_summit", action_space=meta.actions.to_metadata())]
+    )
+    try:
+        clone = load_model(
+            "clipped_ppo", imported.checkpoint_bytes, env, parse_hyperparameters({}),
+            network=meta.neural_network,
+        )  # fmt: skip
+        frame = np.full((1, 1, 120, 160), 90.0, np.float32)
+        source = load_checkpoint(imported.checkpoint_bytes, meta)
+        for model in (clone, source):
+            model.policy.set_training_mode(False)
+        with torch.no_grad():
+            a = clone.policy.get_distribution(torch.from_numpy(frame / 255)).distribution.probs
+            b = source.policy.get_distribution(torch.from_numpy(frame / 255)).distribution.probs
+        torch.testing.assert_close(a, b)
+    finally:
+        env.close()

@@ -66,7 +66,7 @@ VIRTUAL_MODEL_EXCLUDED = ("training-simtrace/", "evaluation/", "videos/", "expor
 # --- ONNX ------------------------------------------------------------------------------------
 
 
-class _DiscretePolicy(nn.Module):
+class DiscretePolicy(nn.Module):
     """PPO, discrete: image 0..255 → softmax over the actions."""
 
     def __init__(self, policy: nn.Module) -> None:
@@ -80,7 +80,7 @@ class _DiscretePolicy(nn.Module):
         return torch.softmax(self.head(latent), dim=-1)
 
 
-class _BoxPolicy(nn.Module):
+class BoxPolicy(nn.Module):
     """PPO or SAC, continuous: image 0..255 → deterministic ``[steering_deg, speed]``."""
 
     def __init__(self, model: BaseAlgorithm) -> None:
@@ -124,10 +124,10 @@ def export_onnx(model: BaseAlgorithm | bytes, metadata: ModelMetadata | None = N
     if isinstance(space, gym.spaces.Discrete):
         if isinstance(model, SAC):
             raise ExportError("SAC needs a continuous action space")
-        wrapper: nn.Module = _DiscretePolicy(model.policy)
+        wrapper: nn.Module = DiscretePolicy(model.policy)
         output = DISCRETE_OUTPUT
     elif isinstance(space, gym.spaces.Box) and space.shape == (2,):
-        wrapper, output = _BoxPolicy(model), CONTINUOUS_OUTPUT
+        wrapper, output = BoxPolicy(model), CONTINUOUS_OUTPUT
     else:
         raise ExportError(f"cannot export a policy with action space {space}")
     shape = tuple(model.policy.observation_space.shape)

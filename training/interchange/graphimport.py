@@ -31,6 +31,7 @@ from training.interchange.carmodel import (
     input_name,
     output_name,
 )
+from training.interchange.export import BoxPolicy, DiscretePolicy
 from training.interchange.tfgraph import GraphError, const_value, parse_graph, run_graph
 from training.rl.checkpoints import new_model
 from training.rl.metadata import ModelMetadata
@@ -259,8 +260,6 @@ def _conv_output_size(found: _Graph, convs: list[_Layer]) -> tuple[int, int]:
 
 def _probe(model: BaseAlgorithm, graph, metadata: ModelMetadata, found: _Graph) -> None:
     """Run the graph (numpy) and the torch policy on probe images; refuse if they differ."""
-    from training.interchange.export import _BoxPolicy, _DiscretePolicy
-
     rng = np.random.default_rng(0)
     images = rng.uniform(0, 255, (3, CAMERA_HEIGHT, CAMERA_WIDTH, metadata.channels)).astype(
         np.float32
@@ -271,7 +270,7 @@ def _probe(model: BaseAlgorithm, graph, metadata: ModelMetadata, found: _Graph) 
         graph, {input_name(algorithm, metadata.camera): images}, output_name(algorithm)
     )
     discrete = metadata.action_space_type == "discrete"
-    wrapper = _DiscretePolicy(model.policy) if discrete else _BoxPolicy(model)
+    wrapper = DiscretePolicy(model.policy) if discrete else BoxPolicy(model)
     with torch.no_grad():
         actual = wrapper(torch.from_numpy(images.transpose(0, 3, 1, 2).copy())).numpy()
     if not discrete:  # the graph's actions are in -1..1 of the ranges

@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+import torch
 from tensorboard.compat.proto import attr_value_pb2, graph_pb2, node_def_pb2, types_pb2
 from tensorboard.compat.proto.tensor_shape_pb2 import TensorShapeProto
 from tensorboard.util import tensor_util
@@ -171,8 +172,6 @@ def _strided_slice(x: np.ndarray, begin: np.ndarray, end: np.ndarray, node) -> n
 
 
 def _conv2d(x: np.ndarray, kernel: np.ndarray, node) -> np.ndarray:
-    import torch
-
     stride = list(node.attr["strides"].list.i)
     if node.attr["padding"].s != b"VALID" or node.attr["data_format"].s not in (b"", b"NHWC"):
         raise GraphError(f"{node.name}: only VALID, NHWC convolutions are supported")
