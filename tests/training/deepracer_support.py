@@ -123,3 +123,37 @@ def aws_samples() -> AwsSamples:
         frames.append(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)[..., None])
     metadata = (root / "model" / "model_metadata.json").read_bytes()
     return AwsSamples(graphs, metadata, np.stack(frames).astype(np.float32))
+
+
+def checkpoint_of(graph: bytes, name: str = "model/12_Step-3400.ckpt") -> dict[str, bytes]:
+    """A TensorFlow (TF1 Saver, TensorBundle) checkpoint holding the weights of a frozen
+    DeepRacer-style graph as variables of the same names, plus what DeepRacer's checkpoints
+    also hold: Adam slots, a target network copy, a value head and the global step."""
+    import tempfile
+    from pathlib import Path
+
+    tf = pytest.importorskip("tensorflow", reason="TensorFlow is in the [tf] test extra")
+    v1 = tf.compat.v1
+    graph_def = v1.GraphDef()
+    graph_def.ParseFromString(graph)
+    weights = {
+        n.name: tf.make_ndarray(n.attr["value"].tensor)
+        for n in graph_def.node
+        if n.op == "Const" and n.name.endswith(("/kernel", "/bias"))
+    }
+    extra = {f"{k}/Adam": v + 1 for k, v in weights.items()}
+    extra |= {k.replace("/online/", "/target/"): v - 1 for k, v in weights.items()}
+    extra["main_level/agent/main/online/network_0/v_values_head_0/output/kernel"] = np.ones(
+        (512, 1), np.float32
+    )
+    with tf.Graph().as_default(), v1.Session() as session:
+        for key, value in (weights | extra).items():
+            v1.get_variable(key, initializer=value)
+        v1.train.get_or_create_global_step()
+        session.run(v1.global_variables_initializer())
+        with tempfile.TemporaryDirectory() as folder:
+            v1.train.Saver().save(session, f"{folder}/ckpt", write_meta_graph=False)
+            return {
+                f"{name}{p.name.removeprefix('ckpt')}": p.read_bytes()
+                for p in Path(folder).glob("ckpt.*")
+            }

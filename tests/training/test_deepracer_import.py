@@ -17,10 +17,14 @@ from tests.training.carmodel_support import (
     stereo,
     torch_outputs,
 )
-from tests.training.deepracer_support import aws_samples, deepracer_style_graph
+from tests.training.deepracer_support import aws_samples, checkpoint_of, deepracer_style_graph
 from training.interchange.archive import ArchiveError, ImportLimits
 from training.interchange.carmodel import export_car_graph, input_name, output_name
-from training.interchange.deepracer import import_car_archive, import_deepracer_model
+from training.interchange.deepracer import (
+    import_car_archive,
+    import_deepracer_model,
+    import_deepracer_upload,
+)
 from training.interchange.export import load_checkpoint
 from training.rl.policies import AWS_SHALLOW, SHALLOW
 
@@ -127,6 +131,29 @@ def test_model_folder_picks_the_best_checkpoints_graph() -> None:
     assert "training_params.yaml" in imported.extra_files
     del folder["model/deepracer_checkpoints.json"]
     assert import_deepracer_model(tar_gz(folder)).source == "model/model_48.pb"
+    assert import_deepracer_upload(tar_gz(folder)).source == "model/model_48.pb"
+    car = {"agent/model.pb": samples.graphs[15], "model_metadata.json": samples.metadata}
+    assert import_deepracer_upload(tar_gz(car)).reward_function is None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["ppo_discrete", "sac"])
+def test_tensorflow_checkpoint_without_a_graph_imports_exactly(kind, frames) -> None:
+    meta = metadata_for(SHALLOW, "FRONT_FACING_CAMERA", kind)
+    n_actions = len(meta.actions.actions) if kind == "ppo_discrete" else 2
+    graph = deepracer_style_graph("FRONT_FACING_CAMERA", kind, n_actions, seed=21)
+    folder = {
+        "model/model_metadata.json": meta.dumps(),
+        "hyperparameters.json": HYPERPARAMETERS,
+        "reward_function.py": REWARD,
+        "model/.coach_checkpoint": b"12_Step-3400.ckpt\n",
+        **checkpoint_of(graph),
+    }
+    assert "model/12_Step-3400.ckpt.data-00000-of-00001" in folder
+    imported = import_deepracer_model(tar_gz(folder))
+    assert imported.source == "model/12_Step-3400.ckpt.index"
+    expected = reference(graph, meta, frames)
+    np.testing.assert_allclose(imported_outputs(imported, frames), expected, atol=1e-4, rtol=0)
 
 
 @pytest.fixture(scope="module")
@@ -185,8 +212,10 @@ def test_model_folder_needs_a_graph(car_files) -> None:
         "ip/hyperparameters.json": HYPERPARAMETERS,
         "reward_function.py": REWARD,
     }
-    with pytest.raises(ArchiveError, match="only TensorFlow checkpoints, no frozen graph"):
-        import_deepracer_model(tar_gz({**base, "model/5_Step-100.ckpt.index": b"x"}))
+    with pytest.raises(ArchiveError, match="not a TensorFlow checkpoint index"):
+        import_deepracer_model(tar_gz({**base, "model/5_Step-100.ckpt.index": b"x" * 60}))
+    with pytest.raises(ArchiveError, match="no DeepRacer model to import"):
+        import_deepracer_model(tar_gz(base))
     with pytest.raises(ArchiveError, match="reward_function.py is missing"):
         import_deepracer_model(tar_gz({k: v for k, v in base.items() if "reward" not in k}))
 

@@ -7,16 +7,19 @@ model folder, into a Racecraft checkpoint (an SB3 zip, as :mod:`training.rl.chec
   DeepRacer-for-Cloud ``model/`` prefix, as tar.gz/tar/zip: ``model_metadata.json`` (at
   ``model/`` or the top), ``reward_function.py``, ``hyperparameters.json`` (``ip/`` or the
   top), optional ``training_params.yaml`` and metrics, and the frozen graphs DeepRacer writes
-  beside its TensorFlow checkpoints, ``model/model_<iteration>.pb``. The graph of the best
-  checkpoint (``deepracer_checkpoints.json``), else the last (``.coach_checkpoint``), else the
-  highest iteration is imported. TensorFlow checkpoints alone (``.ckpt.index`` / ``.data``)
-  are refused with a message saying so: their TensorBundle files are not read yet.
+  beside its TensorFlow checkpoints, ``model/model_<iteration>.pb``, or without them the
+  checkpoints themselves (``model/<iteration>_Step-<steps>.ckpt.index`` + ``.data-*``, read by
+  :mod:`training.interchange.tfcheckpoint`). The best checkpoint
+  (``deepracer_checkpoints.json``), else the last (``.coach_checkpoint``), else the highest
+  iteration is imported, from its graph when there is one.
 
 Archives are read in memory by :func:`training.interchange.archive.read_archive` (links,
 absolute or ``..`` names, devices, oversized or bomb archives are refused). The weights come
-only from the graph's Const nodes (:mod:`training.interchange.graphimport`): nothing is
-unpickled or executed. Only the policy exists in a frozen graph, so the value function (PPO) or
-the critics (SAC) start fresh: :attr:`ImportedDeepRacerModel.value_head_fresh` says so.
+only from the graph's Const nodes or the checkpoint's tensors
+(:mod:`training.interchange.graphimport`): nothing is unpickled or executed. Only the policy is
+taken (a frozen graph holds nothing else, and DeepRacer's PPO value network has its own
+convolutions, which Racecraft's shared network cannot hold), so the value function (PPO) or the
+critics (SAC) start fresh: :attr:`ImportedDeepRacerModel.value_head_fresh` says so.
 Every failure is an :class:`~training.interchange.archive.ArchiveError` naming the file.
 """
 
@@ -35,12 +38,18 @@ from training.interchange.archive import (
     read_json,
     reward_source,
 )
-from training.interchange.graphimport import GraphImportError, policy_from_graph
+from training.interchange.graphimport import (
+    GraphImportError,
+    policy_from_checkpoint,
+    policy_from_graph,
+)
+from training.interchange.tfcheckpoint import CheckpointFormatError, read_checkpoint
 from training.rl.checkpoints import checkpoint_bytes
 from training.rl.hyperparams import HyperparameterError, Hyperparameters, parse_hyperparameters
 from training.rl.metadata import MetadataError, ModelMetadata, parse_metadata
 
 _GRAPH_RE = re.compile(r"^model/model_(\d+)\.pb$")
+_INDEX_RE = re.compile(r"^model/(\d+)_Step-\d+\.ckpt\.index$")
 _CKPT_RE = re.compile(r"^(\d+)_Step-\d+\.ckpt")
 
 
@@ -91,7 +100,10 @@ def import_car_archive(
     Raises :class:`ArchiveError` for an unsafe archive, zero or several ``.pb`` files, a
     missing or bad ``model_metadata.json``, or a graph that fits no Racecraft network.
     """
-    files = read_archive(upload, limits)
+    return _car_model(read_archive(upload, limits))
+
+
+def _car_model(files: Mapping[str, bytes]) -> ImportedDeepRacerModel:
     graphs = sorted(n for n in files if n.endswith(".pb"))
     if len(graphs) != 1:
         found = ", ".join(graphs) if graphs else "none"
@@ -122,25 +134,39 @@ def _iteration(files: Mapping[str, bytes], name: str, role: str) -> int | None:
     return int(match.group(1)) if match else None
 
 
-def _choose_graph(files: Mapping[str, bytes]) -> str:
+def _choose_source(files: Mapping[str, bytes]) -> str:
+    """The frozen graph (``model/model_<n>.pb``) or else the checkpoint index
+    (``model/<n>_Step-<steps>.ckpt.index``) of the best, else last, else newest iteration."""
     graphs = {int(m.group(1)): n for n in files if (m := _GRAPH_RE.match(n))}
-    if not graphs:
-        tf = sorted(n for n in files if ".ckpt" in n)
-        if tf:
-            raise ArchiveError(
-                f"{tf[0]}: only TensorFlow checkpoints, no frozen graph (model/model_<n>.pb); "
-                "Racecraft reads DeepRacer's weights from the frozen graph"
-            )
-        raise ArchiveError("model/model_<iteration>.pb is missing: no DeepRacer model to import")
+    checkpoints = {int(m.group(1)): n for n in files if (m := _INDEX_RE.match(n))}
+    if not graphs and not checkpoints:
+        raise ArchiveError(
+            "no DeepRacer model to import: neither model/model_<iteration>.pb nor "
+            "model/<iteration>_Step-<steps>.ckpt.index"
+        )
     for index, role in (
         ("model/deepracer_checkpoints.json", "best_checkpoint"),
         ("model/deepracer_checkpoints.json", "last_checkpoint"),
         ("model/.coach_checkpoint", ""),
     ):
         iteration = _iteration(files, index, role)
-        if iteration in graphs:
-            return graphs[iteration]
-    return graphs[max(graphs)]
+        if iteration in graphs or iteration in checkpoints:
+            return graphs.get(iteration) or checkpoints[iteration]
+    return graphs[max(graphs)] if graphs else checkpoints[max(checkpoints)]
+
+
+def _from_checkpoint(
+    index_name: str, files: Mapping[str, bytes], metadata: ModelMetadata
+) -> tuple[ModelMetadata, bytes]:
+    prefix = index_name.removesuffix(".index")
+    pattern = re.compile(rf"{re.escape(prefix)}\.data-(\d+)-of-\d+")
+    shards = {int(m.group(1)): data for n, data in files.items() if (m := pattern.fullmatch(n))}
+    try:
+        tensors = read_checkpoint(files[index_name], shards)
+        model, metadata = policy_from_checkpoint(tensors, metadata)
+    except (CheckpointFormatError, GraphImportError) as exc:
+        raise ArchiveError(f"{index_name}: {exc}") from None
+    return metadata, checkpoint_bytes(model)
 
 
 def import_deepracer_model(
@@ -148,7 +174,10 @@ def import_deepracer_model(
 ) -> ImportedDeepRacerModel:
     """A DeepRacer console virtual model or DeepRacer-for-Cloud model folder as a Racecraft
     model (see the module docstring for the files). Raises :class:`ArchiveError`."""
-    files = read_archive(upload, limits)
+    return _model_folder(read_archive(upload, limits))
+
+
+def _model_folder(files: Mapping[str, bytes]) -> ImportedDeepRacerModel:
     meta_name, metadata = _metadata(files, "model/model_metadata.json", "model_metadata.json")
     hp_name = next(
         (n for n in ("ip/hyperparameters.json", "hyperparameters.json") if n in files), None
@@ -164,8 +193,11 @@ def import_deepracer_model(
     if "reward_function.py" not in files:
         raise ArchiveError("reward_function.py is missing")
     reward = reward_source(files, "reward_function.py")
-    graph_name = _choose_graph(files)
-    metadata, zipped = _convert(graph_name, files[graph_name], metadata)
+    source = _choose_source(files)
+    if source.endswith(".pb"):
+        metadata, zipped = _convert(source, files[source], metadata)
+    else:
+        metadata, zipped = _from_checkpoint(source, files, metadata)
     used = {meta_name, hp_name, "reward_function.py"}
     extra = {
         name: data
@@ -176,9 +208,19 @@ def import_deepracer_model(
         metadata=metadata,
         checkpoint_bytes=zipped,
         checkpoint_name="best",
-        source=graph_name,
+        source=source,
         value_head_fresh=True,
         hyperparameters=hyperparameters,
         reward_function=reward,
         extra_files=extra,
     )
+
+
+def import_deepracer_upload(
+    upload: bytes | BinaryIO, limits: ImportLimits | None = None
+) -> ImportedDeepRacerModel:
+    """Either kind of DeepRacer upload, told apart by its files: a model folder has
+    ``reward_function.py``; anything else is read as a car model. Raises :class:`ArchiveError`.
+    """
+    files = read_archive(upload, limits)
+    return _model_folder(files) if "reward_function.py" in files else _car_model(files)

@@ -16,6 +16,8 @@ graph that computes something else is refused rather than imported wrong.
 from __future__ import annotations
 
 import dataclasses
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -210,7 +212,9 @@ def _load(model: BaseAlgorithm, found: _Graph, metadata: ModelMetadata) -> None:
     denses = [layer for layer in found.layers if layer.kind == "dense"]
     # graph input = pixels * scale + offset = (pixels / 255) * 255 * scale + offset
     first = convs[0].kernel
-    conv_bias = [c.bias for c in convs]
+    conv_bias = [
+        c.bias if c.bias is not None else np.zeros(c.kernel.shape[3], np.float32) for c in convs
+    ]
     conv_bias[0] = conv_bias[0] + found.offset * first.sum(axis=(0, 1, 2))
     kernels = [c.kernel.transpose(3, 2, 0, 1) for c in convs]
     kernels[0] = kernels[0] * (255.0 * found.scale)
@@ -232,11 +236,7 @@ def _load(model: BaseAlgorithm, found: _Graph, metadata: ModelMetadata) -> None:
         head.bias if head.bias is not None else np.zeros(head.kernel.shape[1], np.float32),
     )
     space = model.action_space
-    if (
-        found.head in ("linear", "tanh")
-        and metadata.action_space_type == "continuous"
-        and not isinstance(model, SAC)
-    ):
+    if found.head == "linear" and metadata.action_space_type == "continuous":
         # DeepRacer's PPO mean is in -1..1 of the ranges; Racecraft's in the action's units
         half = (space.high - space.low) / 2.0
         kernel, bias = kernel * half[:, None], bias * half + space.low + half
@@ -315,14 +315,74 @@ def policy_from_graph(data: bytes, metadata: ModelMetadata) -> tuple[BaseAlgorit
         raise GraphImportError(
             f"unsupported network: a {algorithm} graph whose head ends in {found.head}"
         )
+    model, metadata = _build(found, metadata)
+    try:
+        _probe(model, graph, metadata, found)
+    except GraphError as exc:
+        raise GraphImportError(str(exc)) from None
+    return model, metadata
+
+
+def _build(found: _Graph, metadata: ModelMetadata) -> tuple[BaseAlgorithm, ModelMetadata]:
     network = _network(found, metadata.channels)
     extra = {k: v for k, v in metadata.extra.items() if k != RACECRAFT_NETWORK_KEY}
     metadata = dataclasses.replace(metadata, neural_network=network, extra=extra)
     model = new_model(metadata)
     with torch.no_grad():
         _load(model, found, metadata)
-    try:
-        _probe(model, graph, metadata, found)
-    except GraphError as exc:
-        raise GraphImportError(str(exc)) from None
     return model, metadata
+
+
+def policy_from_checkpoint(
+    tensors: Mapping[str, np.ndarray], metadata: ModelMetadata
+) -> tuple[BaseAlgorithm, ModelMetadata]:
+    """The torch policy of a DeepRacer TensorFlow checkpoint (tensors by variable name, see
+    :mod:`training.interchange.tfcheckpoint`), as :func:`policy_from_graph` gives it.
+
+    A checkpoint holds variables, not the graph, so DeepRacer's layout is assumed: the policy
+    network's ``<SENSOR>/Conv2d_<n>/kernel|bias`` (strides from the matching network of
+    :data:`training.rl.policies.SPECS`), ``middleware_fc_embedder/Dense_0`` and the one dense
+    layer of its head, on images divided by 255. Raises :class:`GraphImportError`.
+    """
+    algorithm = metadata.training_algorithm
+    scope = output_name(algorithm).rsplit("/", 2)[0] + "/"
+    head_scope = output_name(algorithm).rsplit("/", 1)[0] + "/"
+    convs = {}
+    for name in tensors:
+        match = re.fullmatch(rf"{re.escape(scope + metadata.camera)}/Conv2d_(\d+)/kernel", name)
+        if match:
+            convs[int(match.group(1))] = name[: -len("kernel")]
+    if not convs:
+        raise GraphImportError(f"no convolution under {scope}{metadata.camera}/ in the checkpoint")
+    kernels = [tensors[convs[i] + "kernel"] for i in sorted(convs)]
+    shapes = [(int(k.shape[3]), int(k.shape[0])) for k in kernels]
+    strides = next(
+        (
+            [s for _, _, s in spec]
+            for _, spec, _ in SPECS.values()
+            if [(f, k) for f, k, _ in spec] == shapes
+        ),
+        None,
+    )
+    if strides is None:
+        raise GraphImportError(f"unsupported network: convolutions (filters, kernel) {shapes}")
+    found = _Graph(
+        scale=1 / 255.0, head="softmax" if metadata.action_space_type == "discrete" else "linear"
+    )
+    if algorithm == "sac":
+        found.head = "tanh"
+    for i, kernel, stride in zip(sorted(convs), kernels, strides, strict=True):
+        found.layers.append(_Layer("conv", kernel, stride, tensors.get(convs[i] + "bias"), "Relu"))
+    heads = [n for n in tensors if n.startswith(head_scope) and n.endswith("/kernel")]
+    dense = scope + "middleware_fc_embedder/Dense_0/"
+    if dense + "kernel" not in tensors or len(heads) != 1:
+        raise GraphImportError(
+            f"the checkpoint needs {dense}kernel and one kernel under {head_scope} "
+            f"(found {len(heads)})"
+        )
+    found.layers.append(
+        _Layer("dense", tensors[dense + "kernel"], 1, tensors.get(dense + "bias"), "Relu")
+    )
+    head = heads[0][: -len("kernel")]
+    found.layers.append(_Layer("dense", tensors[head + "kernel"], 1, tensors.get(head + "bias")))
+    return _build(found, metadata)

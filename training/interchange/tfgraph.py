@@ -22,6 +22,9 @@ from tensorboard.util import tensor_util
 
 GRAPH_PRODUCER = 27  # GraphDef version of TensorFlow 1.15, what DeepRacer's tools wrote
 MAX_GRAPH_BYTES = 200 * 1024 * 1024
+MAX_CONST_ELEMENTS = 50_000_000
+"""Largest constant read (elements): a small file can declare a huge tensor of one repeated
+value, which numpy would expand in memory."""
 
 
 class GraphError(ValueError):
@@ -153,9 +156,13 @@ def parse_graph(data: bytes) -> graph_pb2.GraphDef:
 
 
 def const_value(node: node_def_pb2.NodeDef) -> np.ndarray:
-    """The numpy value of a ``Const`` node. Raises :class:`GraphError` for other nodes."""
+    """The numpy value of a ``Const`` node. Raises :class:`GraphError` for other nodes and for
+    constants over :data:`MAX_CONST_ELEMENTS`."""
     if node.op != "Const" or "value" not in node.attr:
         raise GraphError(f"{node.name} is a {node.op}, not a constant")
+    dims = [d.size for d in node.attr["value"].tensor.tensor_shape.dim]
+    if any(d < 0 for d in dims) or int(np.prod(dims, dtype=np.float64)) > MAX_CONST_ELEMENTS:
+        raise GraphError(f"{node.name}: a constant of shape {dims} is too large")
     try:
         return tensor_util.make_ndarray(node.attr["value"].tensor)
     except Exception as exc:  # a malformed TensorProto
