@@ -156,7 +156,7 @@ def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, we
     download = info.value
     assert download.suggested_filename == "oval-racer-car.tar.gz"
     with tarfile.open(fileobj=io.BytesIO(Path(download.path()).read_bytes())) as tar:
-        assert {"model.onnx", "model_metadata.json"} <= set(tar.getnames())
+        assert {"agent/model.pb", "model_metadata.json"} <= set(tar.getnames())
 
     # ---- clone, then delete the clone
     page.click("#clone-link")

@@ -15,6 +15,7 @@ from training.services import downloads
 
 ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str, str]] = {
     "car": (downloads.car_model_archive, "{name}-car.tar.gz", "car model"),
+    "onnx": (downloads.onnx_policy, "{name}-policy.onnx", "ONNX policy"),
     "virtual": (downloads.virtual_model_archive, "{name}-virtualmodel.tar.gz", "virtual model"),
     "logs": (downloads.logs_archive, "{name}-logs.tar.gz", "logs"),
 }
@@ -23,8 +24,9 @@ ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str, str]] = {
 
 class Command(BaseCommand):
     help = (
-        "Write a model's archives, as the console's downloads: --car (model_metadata.json + "
-        "model.onnx for the physical car), --virtual (the whole model, re-importable with "
+        "Write a model's archives, as the console's downloads: --car (agent/model.pb + "
+        "model_metadata.json, for the physical car), --onnx (the policy as ONNX, for other "
+        "runtimes), --virtual (the whole model, re-importable with "
         "racecraft_import), --logs (sim-traces and metrics). A PATH that is a folder gets "
         "the console's file name."
     )
@@ -41,7 +43,8 @@ class Command(BaseCommand):
     def handle(self, *args: Any, model_id: int, owner: str | None, **options: Any) -> None:
         wanted = {kind: options[kind] for kind in ARCHIVES if options[kind]}
         if not wanted:
-            raise CommandError("say what to export: --car PATH, --virtual PATH or --logs PATH")
+            choices = ", ".join(f"--{kind} PATH" for kind in ARCHIVES)
+            raise CommandError(f"say what to export: {choices}")
         _, model = owner_and_model(model_id, owner)
         for kind, target in wanted.items():
             build, filename, what = ARCHIVES[kind]
