@@ -11,7 +11,7 @@ from racing.car import Pose
 from racing.sensors import PinholeCamera, ground_for
 from racing.texture import BORDER_RGB, CENTRE_RGB, FLOOR_RGB, ROAD_RGB
 from racing.tracks import TrackCatalog
-from tests.training.deepracer_support import CACHE, aws_samples
+from tests.training.interchange.deepracer_support import CACHE, aws_samples
 
 CLASSES = {"road": ROAD_RGB, "border": BORDER_RGB, "centre": CENTRE_RGB, "grass": FLOOR_RGB}
 

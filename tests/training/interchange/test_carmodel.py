@@ -10,7 +10,7 @@ import tarfile
 import numpy as np
 import pytest
 
-from tests.training.carmodel_support import (
+from tests.training.interchange.carmodel_support import (
     metadata_for,
     randomised_model,
     run_openvino,

@@ -7,7 +7,11 @@ import pytest
 from tensorboard.compat.proto import attr_value_pb2, node_def_pb2, tensor_pb2, types_pb2
 from tensorboard.compat.proto.tensor_shape_pb2 import TensorShapeProto
 
-from tests.training.carmodel_support import metadata_for, randomised_model, torch_outputs
+from tests.training.interchange.carmodel_support import (
+    metadata_for,
+    randomised_model,
+    torch_outputs,
+)
 from training.interchange.carmodel import export_car_graph, input_name, output_name
 from training.interchange.tfgraph import GraphError, const_value, parse_graph, run_graph
 from training.rl.policies import LEAN

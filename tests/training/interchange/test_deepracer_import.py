@@ -11,13 +11,17 @@ import numpy as np
 import pytest
 import torch
 
-from tests.training.carmodel_support import (
+from tests.training.interchange.carmodel_support import (
     metadata_for,
     run_tensorflow,
     stereo,
     torch_outputs,
 )
-from tests.training.deepracer_support import aws_samples, checkpoint_of, deepracer_style_graph
+from tests.training.interchange.deepracer_support import (
+    aws_samples,
+    checkpoint_of,
+    deepracer_style_graph,
+)
 from training.interchange.archive import ArchiveError, ImportLimits
 from training.interchange.carmodel import export_car_graph, input_name, output_name
 from training.interchange.deepracer import (

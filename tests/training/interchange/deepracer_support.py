@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 DEEPRACER_UTILS = "deepracer-utils==1.5.6"
-CACHE = Path(__file__).resolve().parents[2] / "var" / "cache" / "deepracer-utils-1.5.6"
+CACHE = Path(__file__).resolve().parents[3] / "var" / "cache" / "deepracer-utils-1.5.6"
 SAMPLE = "tests/deepracer/model/sample-model"
 SHALLOW_CONVS = [(32, 8, 4), (64, 4, 2), (64, 3, 1)]
 
