@@ -68,6 +68,7 @@ TEMPLATES = [
                 "django.template.context_processors.request",
                 "django.contrib.auth.context_processors.auth",
                 "django.contrib.messages.context_processors.messages",
+                "console.context_processors.sandbox_warning",
             ],
         },
     },
@@ -185,6 +186,9 @@ RACECRAFT_REMOTE_ROLLOUT_SLOTS = envint("RACECRAFT_REMOTE_ROLLOUT_SLOTS", 0, min
 RACECRAFT_MAX_MODELS_PER_USER = envint("RACECRAFT_MAX_MODELS_PER_USER", 50, minimum=1)
 RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = envint("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER", 2, minimum=1)
 RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks")))
+# Reward code runs only where every isolation protection is in force (training/sandbox/
+# requirements.py); 1 accepts weaker isolation and shows a warning on every page.
+RACECRAFT_ALLOW_WEAK_SANDBOX = envbool("RACECRAFT_ALLOW_WEAK_SANDBOX", False)
 
 LOGGING = {
     "version": 1,

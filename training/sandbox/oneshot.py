@@ -8,7 +8,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from training.sandbox.child import SandboxContext
-from training.sandbox.errors import RewardError, RewardFunctionError, SandboxError
+from training.sandbox.errors import (
+    RewardError,
+    RewardFunctionError,
+    SandboxError,
+    SandboxUnavailable,
+)
 from training.sandbox.guard import copy_params
 from training.sandbox.limits import VALIDATION_LIMITS, SandboxLimits
 from training.sandbox.process import SandboxProcess
@@ -31,6 +36,8 @@ class EvaluationResult:
     outcomes: list[RewardOutcome]
     layers: dict[str, str] = field(default_factory=dict)
     output: str = ""
+    #: Protections missing but accepted by RACECRAFT_ALLOW_WEAK_SANDBOX; empty normally.
+    weak: tuple[str, ...] = ()
 
     @property
     def errors(self) -> list[RewardError]:
@@ -72,10 +79,15 @@ def timing_main(ctx: SandboxContext) -> dict[str, float]:
 
 def isolation_support(limits: SandboxLimits | None = None) -> dict[str, str]:
     """Start a sandbox with a trivial reward and return its report of isolation layers:
-    ``{layer: "active" | "unavailable: <reason>" | ...}``."""
+    ``{layer: "active" | "unavailable: <reason>" | ...}``; it never refuses (our own code),
+    see :func:`~training.sandbox.requirements.missing_requirements` for the verdict."""
     source = "def reward_function(params):\n    return 1.0\n"
     sandbox = SandboxProcess(
-        target=EVALUATE_TARGET, reward_source=source, args={"params": []}, limits=limits
+        target=EVALUATE_TARGET,
+        reward_source=source,
+        args={"params": []},
+        limits=limits,
+        allow_weak=True,
     )
     try:
         return sandbox.start()
@@ -100,9 +112,12 @@ def evaluate_reward(
     Each call has ``limits.per_call_seconds``. An error in one call does not stop the others;
     a call that kills the sandbox (timeout, crash) is reported and the remaining calls run in
     a fresh sandbox. A module that does not load gives the same error for every call.
+    Raises SandboxUnavailable (before running any user code) when this machine cannot isolate
+    it and weak isolation was not accepted.
     """
     outcomes: list[RewardOutcome | None] = [None] * len(params_list)
     layers: dict[str, str] = {}
+    weak: tuple[str, ...] = ()
     output: list[str] = []
     start = 0
     while start < len(params_list):
@@ -116,6 +131,7 @@ def evaluate_reward(
         )
         try:
             layers = sandbox.start()
+            weak = sandbox.weak
             while True:
                 msg = sandbox.recv()
                 if msg.kind == "result":
@@ -132,8 +148,10 @@ def evaluate_reward(
         except RewardFunctionError as exc:  # the module did not load
             output.append(sandbox.output)
             return EvaluationResult(
-                [RewardOutcome(None, exc.error)] * len(params_list), layers, "".join(output)
+                [RewardOutcome(None, exc.error)] * len(params_list), layers, "".join(output), weak
             )
+        except SandboxUnavailable:
+            raise
         except (SandboxError, KeyError, TypeError, ValueError) as exc:
             first = next((j for j in range(start, len(params_list)) if outcomes[j] is None), start)
             error = (
@@ -148,7 +166,7 @@ def evaluate_reward(
         finally:
             sandbox.close()
     done = [o if o is not None else RewardOutcome(None, None) for o in outcomes]
-    return EvaluationResult(done, layers, "".join(output))
+    return EvaluationResult(done, layers, "".join(output), weak)
 
 
 class SandboxedReward:

@@ -9,6 +9,7 @@ wall-clock limit; signals inside the child are not relied upon.
 from __future__ import annotations
 
 import contextlib
+import logging
 import mmap
 import os
 import signal
@@ -31,10 +32,21 @@ from training.sandbox.errors import (
     SandboxProtocolError,
     SandboxStartError,
     SandboxTimeout,
+    SandboxUnavailable,
 )
 from training.sandbox.limits import SandboxLimits
 from training.sandbox.lockdown import CHILD_ENV
 from training.sandbox.protocol import FrameReader, ProtocolError, encode
+from training.sandbox.requirements import (
+    REQUIREMENT_NAMES,
+    REQUIREMENTS,
+    describe_missing,
+    missing_requirements,
+    simulated_missing,
+    weak_sandbox_allowed,
+)
+
+log = logging.getLogger(__name__)
 
 PACKAGE_ROOT = str(Path(__file__).resolve().parents[2])
 WATCHDOG_PERIOD_S = 0.02
@@ -85,8 +97,12 @@ class SandboxProcess:
         prepare: str | None = None,
         python_guards: bool = True,
         disabled_layers: tuple[str, ...] = (),
+        allow_weak: bool | None = None,
     ) -> None:
         self.target = target
+        self.allow_weak = weak_sandbox_allowed() if allow_weak is None else allow_weak
+        #: Protections missing but accepted (``allow_weak``); empty on a fully isolated run.
+        self.weak: tuple[str, ...] = ()
         self.disabled_layers = disabled_layers
         self.source = reward_source
         self.args = args
@@ -154,22 +170,41 @@ class SandboxProcess:
             "target": self.target, "prepare": self.prepare, "args": self.args,
             "limits": self.limits.to_dict(), "source": self.source,
             "python_guards": self.python_guards, "disabled_layers": list(self.disabled_layers),
+            "cgroup_pids": cgroup_state, "allow_weak": self.allow_weak,
+            "simulate_missing": list(simulated_missing()),
         }  # fmt: skip
         try:
             self._write(job)
-            msg = self._next(self.limits.start_seconds, "starting")
+            self._locked(self._next(self.limits.start_seconds, "starting"))
+            msg = self._next(self.limits.start_seconds, "loading the reward function")
         except BaseException:
             self.close()
             raise
         if msg.get("kind") != "ready":
             self.close()
             raise SandboxProtocolError("the sandbox did not start as expected")
-        layers = msg.get("layers")
-        self.layers = (
-            {str(k): str(v) for k, v in layers.items()} if isinstance(layers, dict) else {}
-        )
-        self.layers["cgroup_pids"] = cgroup_state
         return self.layers
+
+    def _locked(self, msg: dict[str, Any]) -> None:
+        """Take the child's layer report, sent after lock-down and before any user code; refuse
+        (fail closed) when a protection is missing, unless weak isolation was accepted."""
+        kind = msg.get("kind")
+        layers = msg.get("layers")
+        if kind not in ("locked", "refused") or not isinstance(layers, dict):
+            raise SandboxProtocolError("the sandbox did not start as expected")
+        self.layers = {str(k): str(v)[:300] for k, v in layers.items()}
+        missing = missing_requirements(self.layers)
+        if kind == "refused":  # the child's own names, kept only when they are ours
+            named = msg.get("missing")
+            names = set(named) & REQUIREMENT_NAMES if isinstance(named, list) else set()
+            missing = [r for r in REQUIREMENTS if r.name in names] or missing
+            missing = missing or list(REQUIREMENTS)  # a refusal we cannot read: trust nothing
+        names = tuple(r.name for r in missing)
+        if missing and (kind == "refused" or not self.allow_weak):
+            raise SandboxUnavailable(describe_missing(missing), names)
+        if missing:
+            self.weak = names
+            log.info("reward sandbox runs with weakened isolation: missing %s", names)
 
     def close(self, grace_seconds: float = 0.0) -> None:
         """Stop the child (after ``grace_seconds`` for a clean exit), reap it, stop the
