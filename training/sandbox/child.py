@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from training.sandbox import landlock, lockdown
+from training.sandbox import landlock, lockdown, seccomp
 from training.sandbox.errors import RewardFunctionError
 from training.sandbox.guard import RewardCallable, install_output_capture, load_reward_function
 from training.sandbox.limits import SandboxLimits
@@ -148,6 +148,7 @@ def _main(argv: list[str]) -> None:
     has_landlock = landlock.abi_version() > 0 and "landlock" not in skip
     for name in PREIMPORTS + (() if has_landlock else PREIMPORTS_NO_LANDLOCK):
         importlib.import_module(name)
+    seccomp.library()  # loaded while its file can still be read
     target = resolve(job["target"])
     prepared = resolve(job["prepare"])(job["args"]) if job.get("prepare") else None
     layers.update(
