@@ -7,16 +7,18 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from training.sandbox import checked
 from training.sandbox.child import SandboxContext
 from training.sandbox.errors import (
     RewardError,
     RewardFunctionError,
     SandboxError,
+    SandboxProtocolError,
     SandboxUnavailable,
 )
 from training.sandbox.guard import copy_params
 from training.sandbox.limits import VALIDATION_LIMITS, SandboxLimits
-from training.sandbox.process import SandboxProcess
+from training.sandbox.process import CALL_SLACK_S, SandboxProcess
 
 EVALUATE_TARGET = "training.sandbox.oneshot:evaluate_main"
 SERVE_TARGET = "training.sandbox.oneshot:serve_main"
@@ -99,6 +101,22 @@ def _crash_error(exc: SandboxError) -> RewardError:
     return RewardError("TEST_FAILURE", str(exc))
 
 
+def evaluation_seconds(limits: SandboxLimits, calls: int) -> float:
+    """The overall limit of an evaluation on the parent's clock: start-up, then each call
+    with its limit and slack (a restart after a killed call fits in that slack)."""
+    return limits.start_seconds + calls * (limits.per_call_seconds + CALL_SLACK_S)
+
+
+def _checked_outcome(value: Any, offset: int, size: int) -> tuple[int, RewardOutcome]:
+    """``(index, outcome)`` of one evaluate_main message; raises Malformed otherwise."""
+    msg = checked.mapping(value, "reward message")
+    i = offset + checked.index(msg.get("i"), size - offset, "reward index")
+    if "error" in msg:
+        err = checked.mapping(msg["error"], "reward error")
+        return i, RewardOutcome(None, RewardError.from_dict(err))
+    return i, RewardOutcome(checked.number(msg.get("value"), "reward value"))
+
+
 def evaluate_reward(
     source: str,
     params_list: list[dict[str, Any]],
@@ -106,21 +124,35 @@ def evaluate_reward(
     limits: SandboxLimits = VALIDATION_LIMITS,
     python_guards: bool = True,
     disabled_layers: tuple[str, ...] = (),
+    deadline_seconds: float | None = None,
 ) -> EvaluationResult:
     """Call ``reward_function`` of ``source`` on each params dict, in a sandbox.
 
-    Each call has ``limits.per_call_seconds``. An error in one call does not stop the others;
-    a call that kills the sandbox (timeout, crash) is reported and the remaining calls run in
-    a fresh sandbox. A module that does not load gives the same error for every call.
+    Each call has ``limits.per_call_seconds`` and the whole evaluation ``deadline_seconds``
+    (default :func:`evaluation_seconds`), both on this process's clock. An error in one call
+    does not stop the others; a call that kills the sandbox (timeout, crash, malformed data)
+    is reported and the remaining calls run in a fresh sandbox, while time remains. A module
+    that does not load gives the same error for every call.
     Raises SandboxUnavailable (before running any user code) when this machine cannot isolate
     it and weak isolation was not accepted.
     """
-    outcomes: list[RewardOutcome | None] = [None] * len(params_list)
+    n = len(params_list)
+    overall = evaluation_seconds(limits, n) if deadline_seconds is None else deadline_seconds
+    deadline = time.monotonic() + overall
+    outcomes: list[RewardOutcome | None] = [None] * n
     layers: dict[str, str] = {}
     weak: tuple[str, ...] = ()
     output: list[str] = []
     start = 0
-    while start < len(params_list):
+    while start < n:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            late = RewardError(
+                "TEST_FAILURE",
+                f"Not run: the evaluation passed its overall limit of {overall:g} s.",
+            )
+            outcomes[start:] = [o or RewardOutcome(None, late) for o in outcomes[start:]]
+            break
         sandbox = SandboxProcess(
             target=EVALUATE_TARGET,
             reward_source=source,
@@ -128,38 +160,35 @@ def evaluate_reward(
             limits=limits,
             python_guards=python_guards,
             disabled_layers=disabled_layers,
+            deadline_seconds=left,
         )
         try:
             layers = sandbox.start()
             weak = sandbox.weak
+            per_call = limits.per_call_seconds + CALL_SLACK_S
             while True:
-                msg = sandbox.recv()
+                msg = sandbox.recv(per_call, late=sandbox.late_words("reward_function"))
                 if msg.kind == "result":
                     output.append(msg.output)
                     break
-                i = start + int(msg.value["i"])
-                err = msg.value.get("error")
-                outcomes[i] = (
-                    RewardOutcome(None, RewardError.from_dict(err))
-                    if isinstance(err, dict)
-                    else RewardOutcome(float(msg.value["value"]))
-                )
-            start = len(params_list)
+                i, outcome = _checked_outcome(msg.value, start, n)
+                outcomes[i] = outcome
+            if any(o is None for o in outcomes[start:]):  # "finished" without every answer
+                raise checked.Malformed("the sandbox finished early")
+            start = n
         except RewardFunctionError as exc:  # the module did not load
             output.append(sandbox.output)
             return EvaluationResult(
-                [RewardOutcome(None, exc.error)] * len(params_list), layers, "".join(output), weak
+                [RewardOutcome(None, exc.error)] * n, layers, "".join(output), weak
             )
         except SandboxUnavailable:
             raise
-        except (SandboxError, KeyError, TypeError, ValueError) as exc:
-            first = next((j for j in range(start, len(params_list)) if outcomes[j] is None), start)
+        except (SandboxError, checked.Malformed) as exc:
+            first = next((j for j in range(start, n) if outcomes[j] is None), start)
             error = (
                 _crash_error(exc)
                 if isinstance(exc, SandboxError)
-                else RewardError(
-                    "TEST_FAILURE", "The reward function's sandbox sent malformed data."
-                )
+                else RewardError("TEST_FAILURE", checked.MALFORMED)
             )
             outcomes[first] = RewardOutcome(None, error)
             start = first + 1
@@ -179,12 +208,17 @@ class SandboxedReward:
     def __init__(self, source: str, limits: SandboxLimits | None = None) -> None:
         self._sandbox = SandboxProcess(target=SERVE_TARGET, reward_source=source, limits=limits)
         self.layers = self._sandbox.start()
-        self._timeout = self._sandbox.limits.per_call_seconds + 5.0
+        self._timeout = self._sandbox.limits.per_call_seconds + CALL_SLACK_S
 
     def __call__(self, params: dict[str, Any]) -> float:
         self._sandbox.send(params)
-        msg = self._sandbox.recv(self._timeout)
-        return float(msg.value)
+        late = self._sandbox.late_words("reward_function")
+        msg = self._sandbox.recv(self._timeout, late=late)
+        try:
+            return checked.number(msg.value, "reward value")
+        except checked.Malformed:
+            self._sandbox.close()
+            raise SandboxProtocolError(checked.MALFORMED) from None
 
     def close(self) -> None:
         self._sandbox.close()
