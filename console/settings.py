@@ -189,6 +189,9 @@ RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks
 # Reward code runs only where every isolation protection is in force (training/sandbox/
 # requirements.py); 1 accepts weaker isolation and shows a warning on every page.
 RACECRAFT_ALLOW_WEAK_SANDBOX = envbool("RACECRAFT_ALLOW_WEAK_SANDBOX", False)
+# Reward validations run as Celery tasks; per user: at once, and started per minute.
+RACECRAFT_VALIDATIONS_PER_USER = envint("RACECRAFT_VALIDATIONS_PER_USER", 2, minimum=1)
+RACECRAFT_VALIDATIONS_PER_MINUTE = envint("RACECRAFT_VALIDATIONS_PER_MINUTE", 10, minimum=1)
 
 LOGGING = {
     "version": 1,

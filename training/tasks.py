@@ -13,6 +13,7 @@ from celery import shared_task
 from celery.signals import worker_ready
 
 from training import services
+from training.services.rewards import reward_validation_run
 from training.worker import jobs
 
 
@@ -32,6 +33,13 @@ def simulate_rollout(**kwargs) -> str:
     from training.rollout.remote import serve_rollout
 
     return serve_rollout(**kwargs)
+
+
+@shared_task(name="training.tasks.validate_reward", acks_late=False, time_limit=600)
+def validate_reward(*, source: str, track_id: str, direction: str) -> dict:
+    """Validate a user's reward function here, in a worker, never in the web process
+    (queue ``default``); the sandbox's own deadlines end it well before ``time_limit``."""
+    return reward_validation_run(source=source, track_id=track_id, direction=direction)
 
 
 @shared_task(name="training.tasks.reap_orphans")
