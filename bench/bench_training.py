@@ -31,6 +31,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 from training.rl.hyperparams import Hyperparameters  # noqa: E402
 from training.rl.policies import LEAN, SHALLOW  # noqa: E402
 from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train  # noqa: E402
+from training.rollout.backends import LocalRollouts  # noqa: E402
 from training.rollout.envs import EnvSpec  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "tracks"
@@ -119,7 +120,7 @@ def run_one(track: str, network: str, minutes: float, scratch: Path, seed: int) 
         max_minutes=minutes,
         reward_source=REWARD,
         num_envs=8,
-        num_workers=2,
+        rollouts=LocalRollouts(num_workers=2),
         seed=seed,
         eval_episodes=1,
         eval_laps=3,

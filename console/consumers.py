@@ -23,9 +23,8 @@ from asgiref.sync import sync_to_async
 from channels.db import database_sync_to_async
 from channels.generic.websocket import AsyncJsonWebsocketConsumer
 
-from training import selectors
+from training import live, selectors
 from training.models import EvaluationJob, TrainingJob
-from training.worker import live
 
 NOT_FOUND = 4404
 """Close code for a job that is not the user's (or does not exist): like an HTTP 404."""

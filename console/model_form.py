@@ -8,22 +8,25 @@ parsed in :meth:`ModelCreateForm.clean`. Errors about the whole table go on the 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from django import forms
 from django.core.validators import RegexValidator
 
 from console import tracks
+from console.forms import add_service_error
 from racing.actions import (
     DEFAULT_DISCRETE,
     MAX_DISCRETE_ACTIONS,
     MAX_SPEED,
-    MAX_STEERING_DEG,
     MIN_DISCRETE_ACTIONS,
     MIN_SPEED,
     ActionSpaceError,
+    action_range_error,
     discrete_action_list,
 )
+from training import services
 from training.models import MODEL_NAME_RE, Direction, RaceType
 from training.rewards.examples import example_source
 from training.rl.hyperparams import (
@@ -172,15 +175,14 @@ class ModelCreateForm(forms.Form):
             return None
         for i, (steer_text, speed_text) in enumerate(rows):
             try:
-                steer, speed = float(steer_text), float(speed_text)
+                action = {"steering_angle": float(steer_text), "speed": float(speed_text)}
             except ValueError:
                 self.row_errors[i] = "Steering and speed must be numbers."
                 continue
-            if not -MAX_STEERING_DEG <= steer <= MAX_STEERING_DEG:
-                self.row_errors[i] = "Steering angle must be between -30 and 30 degrees."
-            elif not MIN_SPEED <= speed <= MAX_SPEED:
-                self.row_errors[i] = "Speed must be between 0.1 and 4 m/s."
-            actions.append({"steering_angle": steer, "speed": speed})
+            error = action_range_error(action["steering_angle"], action["speed"])
+            if error:
+                self.row_errors[i] = error[:1].upper() + error[1:] + "."
+            actions.append(action)
         if self.row_errors:
             n = len(self.row_errors)
             self.add_error("action_space", f"{n} action{'s' if n > 1 else ''} need fixing.")
@@ -206,16 +208,14 @@ class ModelCreateForm(forms.Form):
         }
 
     def clean(self) -> dict[str, Any]:
+        """The form's own checks (fields, the table's rows); the domain's rules come from
+        the services, shown on the field they name."""
         data = super().clean()
-        if data.get("race_type") and data["race_type"] != RaceType.TIME_TRIAL:
-            self.add_error("race_type", "Only Time trial is available for now; the others are "
-                           "coming soon.")  # fmt: skip
+        if data.get("race_type"):
+            self._service_check(lambda: services.check_race_type(data["race_type"]))
         kind = data.get("action_space_type")
         if kind == "discrete":
             data["actions"] = self._discrete_actions()
-            if data.get("algorithm") == "sac":
-                self.add_error("algorithm", "SAC works only with a continuous action space: "
-                               "choose PPO or a continuous action space.")  # fmt: skip
         elif kind == "continuous":
             data["actions"] = self._continuous_actions(data)
         if data.get("algorithm") and not any(k in self.errors for k in HP_FIELDS):
@@ -225,7 +225,21 @@ class ModelCreateForm(forms.Form):
             except HyperparameterError as exc:
                 field = exc.field if exc.field in self.fields else None
                 self.add_error(field, str(exc).split(": ", 1)[-1].capitalize())
+        if data.get("actions") is not None and "hyperparameters" in data and not self.errors:
+            self._service_check(lambda: services.check_model_spec(
+                track_id=data["track_id"], direction=data["direction"],
+                race_type=data["race_type"], sensors=[data["sensor"]],
+                action_space=data["actions"], algorithm=data["algorithm"],
+                neural_network=data["neural_network"],
+                hyperparameters=data["hyperparameters"], max_minutes=data["max_minutes"],
+            ))  # fmt: skip
         return data
+
+    def _service_check(self, check: Callable[[], object]) -> None:
+        try:
+            check()
+        except services.ServiceError as exc:
+            add_service_error(self, exc.message, exc.field)
 
     @staticmethod
     def hyperparameters(data: dict) -> dict:

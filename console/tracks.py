@@ -10,10 +10,9 @@ import hashlib
 import threading
 from dataclasses import dataclass
 
-from django.conf import settings
-
 from racing.preview import render_preview_png
-from racing.tracks import TrackCatalog, TrackInfo, UnknownTrackError
+from racing.tracks import TrackInfo, UnknownTrackError
+from training.services import track_catalog
 
 __all__ = [
     "PREVIEW_WIDTH_PX",
@@ -50,11 +49,6 @@ class TrackPreview:
 
 _preview_cache: dict[str, TrackPreview] = {}
 _preview_lock = threading.Lock()
-
-
-def track_catalog() -> TrackCatalog:
-    """The catalogue of built-in tracks plus the user's imported ones."""
-    return TrackCatalog(extra_dirs=[settings.RACECRAFT_TRACKS_DIR])
 
 
 def track_rows() -> list[TrackRow]:

@@ -10,13 +10,13 @@ from django.utils import timezone
 
 from leaderboard.models import Division, RacerProfile, RankingMethod, Season
 from training.models import Direction, RaceType, RacingModel
-from training.services import catalog
+from training.services import track_catalog
 
 DATETIME_FORMAT = "%Y-%m-%dT%H:%M"
 
 
 def _track_choices() -> list[tuple[str, str]]:
-    cat = catalog()
+    cat = track_catalog()
     return [(info.id, info.name) for info in cat.list()]
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from leaderboard.models import Submission
 from leaderboard.ranking import format_ms
 from leaderboard.selectors import leaderboard_rows
-from training.worker import live
+from training import live
 
 MESSAGE_TYPE = "league.result"
 

@@ -15,6 +15,7 @@ from django.db import models
 from django.utils import timezone
 
 from training.models import Direction, EvaluationJob, RaceType, RacingModel
+from training.services.checks import track_catalog
 
 MIN_EVALUATION_LAPS = 3
 """The evaluator runs 3-5 laps: an event whose maximum is lower still runs 3."""
@@ -128,10 +129,8 @@ class Event(models.Model):
     @property
     def track_name(self) -> str:
         """The track's display name (its id when the track is no longer in the catalogue)."""
-        from training.services import catalog
-
         try:
-            return catalog().info(self.track_id).name
+            return track_catalog().info(self.track_id).name
         except (KeyError, ValueError, OSError):
             return self.track_id
 

@@ -15,6 +15,7 @@ from django.utils import timezone
 from leaderboard import ranking
 from leaderboard.access import LeagueError
 from leaderboard.events import event_entry_check
+from leaderboard.live import broadcast_result
 from leaderboard.models import Event, RacerProfile, Submission
 from leaderboard.profiles import profile_for
 from training.models import EvaluationJob, JobStatus, RacingModel
@@ -151,12 +152,7 @@ def submission_record_result(*, evaluation_id: int) -> Submission | None:
         submission.save()
         pk = submission.pk
 
-        def announce() -> None:
-            from leaderboard.live import broadcast_result
-
-            broadcast_result(pk)
-
-        transaction.on_commit(announce)
+        transaction.on_commit(lambda: broadcast_result(pk))
     return submission
 
 

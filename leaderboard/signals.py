@@ -9,6 +9,7 @@ import logging
 from django.db.models.signals import post_save
 from django.dispatch import receiver
 
+from leaderboard.services import submission_record_result
 from training.models import FINISHED_JOB_STATUSES, EvaluationJob
 from training.signals import evaluation_finished
 
@@ -16,8 +17,6 @@ log = logging.getLogger(__name__)
 
 
 def _record(evaluation_id: int) -> None:
-    from leaderboard.services import submission_record_result
-
     try:
         submission_record_result(evaluation_id=evaluation_id)
     except Exception:  # noqa: BLE001 - never break the job's own bookkeeping; reconcile retries

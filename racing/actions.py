@@ -46,6 +46,15 @@ def _number(value, what: str) -> float:
     return value
 
 
+def action_range_error(steering_deg: float, speed: float) -> str:
+    """What is wrong with one discrete action's values ("" when nothing is)."""
+    if abs(steering_deg) > MAX_STEERING_DEG:
+        return f"steering angle {steering_deg:g} is outside -30..30 degrees"
+    if not MIN_SPEED <= speed <= MAX_SPEED:
+        return f"speed {speed:g} is outside 0.1..4 m/s"
+    return ""
+
+
 def discrete_action_list(
     max_steering: float, steering_levels: int, max_speed: float, speed_levels: int
 ) -> list[dict]:
@@ -105,10 +114,9 @@ class ActionSpec:
                 raise ActionSpaceError(f"action {i} needs 'steering_angle' and 'speed'")
             steer = _number(item["steering_angle"], f"action {i} steering_angle")
             speed = _number(item["speed"], f"action {i} speed")
-            if abs(steer) > MAX_STEERING_DEG:
-                raise ActionSpaceError(f"action {i}: steering_angle {steer} is outside -30..30°")
-            if not MIN_SPEED <= speed <= MAX_SPEED:
-                raise ActionSpaceError(f"action {i}: speed {speed} is outside 0.1..4 m/s")
+            error = action_range_error(steer, speed)
+            if error:
+                raise ActionSpaceError(f"action {i}: {error}")
             actions.append((steer, speed))
         return cls(kind="discrete", actions=tuple(actions))
 

@@ -30,12 +30,10 @@ class RacingModel(models.Model):
         QUEUED = "QUEUED", "Queued"
         TRAINING = "TRAINING", "Training"
         EVALUATING = "EVALUATING", "Evaluating"
-        SUBMITTING = "SUBMITTING", "Submitting"
         STOPPING = "STOPPING", "Stopping"
         READY = "READY", "Ready"
         ERROR = "ERROR", "Error"
         DELETING = "DELETING", "Deleting"
-        IMPORTING = "IMPORTING", "Importing"
 
     owner = models.ForeignKey(
         settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="racing_models"
@@ -88,8 +86,6 @@ class RacingModel(models.Model):
             self.Status.EVALUATING,
             self.Status.STOPPING,
             self.Status.DELETING,
-            self.Status.IMPORTING,
-            self.Status.SUBMITTING,
         )
 
 
@@ -109,6 +105,8 @@ ACTIVE_JOB_STATUSES = (
     JobStatus.IN_PROGRESS,
     JobStatus.STOPPING,
 )
+RUNNING_JOB_STATUSES = (JobStatus.INITIALIZING, JobStatus.IN_PROGRESS, JobStatus.STOPPING)
+"""A worker holds the job (and sends heartbeats)."""
 FINISHED_JOB_STATUSES = (JobStatus.COMPLETED, JobStatus.FAILED, JobStatus.CANCELED)
 
 

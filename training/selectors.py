@@ -1,4 +1,4 @@
-"""Reads the web console needs, always scoped to one owner.
+"""Reads: what the web console and the command line show, always scoped to one owner.
 
 Every lookup of a model or a job by id goes through here and filters by the owner, so a user
 who asks for someone else's object gets exactly what they get for a missing one:
@@ -7,9 +7,20 @@ who asks for someone else's object gets exactly what they get for a missing one:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+from django.contrib.auth import get_user_model
 from django.db.models import QuerySet
 
-from training.models import EvaluationJob, IterationMetric, RacingModel, TrainingJob
+from training.errors import ServiceError
+from training.models import (
+    ACTIVE_JOB_STATUSES,
+    EvaluationJob,
+    IterationMetric,
+    JobStatus,
+    RacingModel,
+    TrainingJob,
+)
 
 
 def models_for_owner(owner) -> QuerySet[RacingModel]:
@@ -53,3 +64,46 @@ def evaluations_of(model: RacingModel, limit: int = 10) -> list[EvaluationJob]:
 def chart_points(job: TrainingJob) -> list[dict]:
     """The reward graph so far: one ``IterationMetric.as_point()`` per iteration."""
     return [m.as_point() for m in IterationMetric.objects.filter(job=job).order_by("iteration")]
+
+
+@dataclass(frozen=True)
+class ModelActions:
+    """What the owner may do with a model now (the services enforce the same rules)."""
+
+    can_train: bool
+    can_evaluate: bool
+    can_clone: bool
+
+
+def model_actions(model: RacingModel, job: TrainingJob | None = None) -> ModelActions:
+    """The buttons a model's page offers; ``job`` is its latest training job, if known."""
+    job = job if job is not None else latest_training_job(model)
+    trained = job is not None and job.status == JobStatus.COMPLETED
+    busy = model.is_busy or (job is not None and job.status in ACTIVE_JOB_STATUSES)
+    return ModelActions(
+        can_train=not busy and not trained,
+        can_evaluate=model.has_checkpoint and not model.is_busy,
+        can_clone=model.has_checkpoint,
+    )
+
+
+# ------------------------------------------------------------------------------ command line
+def user_by_username(*, username: str):
+    """The user named ``username``. Raises :class:`ServiceError` when there is none."""
+    User = get_user_model()
+    try:
+        return User.objects.get(**{User.USERNAME_FIELD: username})
+    except User.DoesNotExist:
+        raise ServiceError(
+            f"there is no user named {username!r}; create one first "
+            "(manage.py createsuperuser, or sign up in the console)"
+        ) from None
+
+
+def model_for_cli(*, model_id: int, user=None) -> RacingModel:
+    """Model ``model_id``; when ``user`` is given it must own it. Raises :class:`ServiceError`."""
+    model = RacingModel.objects.select_related("owner").filter(pk=model_id).first()
+    if model is None or (user is not None and model.owner_id != user.pk):
+        whose = f" owned by {user.get_username()!r}" if user is not None else ""
+        raise ServiceError(f"there is no model {model_id}{whose}")
+    return model

@@ -1,8 +1,9 @@
-"""Celery tasks: thin wrappers that take ids and call training.worker.jobs / training.services.
+"""Celery tasks: thin interfaces that take ids and call the worker and the services.
 
-Queues by name (console/celery.py): ``train_*`` → training, ``evaluate_*`` → evaluation.
-Jobs are claimed atomically (a retried or duplicated task finds the job taken and skips), and
-a worker that starts fails the jobs its previous life left running.
+Queues by name (console/celery.py): ``train_*`` → training, ``evaluate_*`` → evaluation,
+``simulate_*`` → simulation. Services queue these by name (:mod:`training.dispatch`). Jobs
+are claimed with a compare-and-set (a retried or duplicated task finds the job taken and
+skips), and a worker that starts fails the jobs its previous life left running.
 """
 
 from __future__ import annotations
@@ -11,31 +12,32 @@ import socket
 
 from celery import shared_task
 from celery.signals import worker_ready
+from django.db import close_old_connections
 
-from training import services
+from training import dispatch, services
+from training.rollout.remote import serve_rollout
 from training.services.rewards import reward_validation_run
-from training.worker import jobs
+from training.worker.evaluation import run_evaluation_job
+from training.worker.training import run_training_job
 
 
-@shared_task(bind=True, name="training.tasks.train_model", acks_late=False)
+@shared_task(bind=True, name=dispatch.TRAIN_MODEL, acks_late=False)
 def train_model(self, job_id: int) -> str:
-    return jobs.run_training_job(job_id, worker=self.request.hostname or "")
+    return run_training_job(job_id, worker=self.request.hostname or "")
 
 
-@shared_task(bind=True, name="training.tasks.evaluate_model", acks_late=False)
+@shared_task(bind=True, name=dispatch.EVALUATE_MODEL, acks_late=False)
 def evaluate_model(self, evaluation_id: int) -> str:
-    return jobs.run_evaluation_job(evaluation_id, worker=self.request.hostname or "")
+    return run_evaluation_job(evaluation_id, worker=self.request.hostname or "")
 
 
-@shared_task(name="training.tasks.simulate_rollout", acks_late=False)
+@shared_task(name=dispatch.SIMULATE_ROLLOUT, acks_late=False)
 def simulate_rollout(**kwargs) -> str:
     """A rollout worker for a trainer on another machine (queue ``simulation``)."""
-    from training.rollout.remote import serve_rollout
-
     return serve_rollout(**kwargs)
 
 
-@shared_task(name="training.tasks.validate_reward", acks_late=False, time_limit=600)
+@shared_task(name=dispatch.VALIDATE_REWARD, acks_late=False, time_limit=600)
 def validate_reward(*, source: str, track_id: str, direction: str) -> dict:
     """Validate a user's reward function here, in a worker, never in the web process
     (queue ``default``); the sandbox's own deadlines end it well before ``time_limit``."""
@@ -50,8 +52,6 @@ def reap_orphans() -> int:
 @worker_ready.connect
 def _fail_jobs_of_my_previous_life(sender=None, **kwargs) -> None:
     """Jobs this host was running when its worker died can never finish: fail them now."""
-    from django.db import close_old_connections
-
     close_old_connections()
     name = getattr(sender, "hostname", None) or socket.gethostname()
     services.jobs_fail_for_worker(worker=str(name)[:255])

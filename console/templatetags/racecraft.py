@@ -11,7 +11,6 @@ register = template.Library()
 BADGES = {
     "READY": "ok", "COMPLETED": "ok",
     "TRAINING": "busy", "IN_PROGRESS": "busy", "EVALUATING": "busy", "INITIALIZING": "busy",
-    "SUBMITTING": "busy", "IMPORTING": "busy",
     "QUEUED": "wait", "STOPPING": "wait", "DELETING": "wait",
     "ERROR": "bad", "FAILED": "bad", "CANCELED": "off",
 }  # fmt: skip

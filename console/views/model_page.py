@@ -10,11 +10,12 @@ from django.shortcuts import redirect, render
 from django.views.decorators.http import require_http_methods, require_POST
 
 from console import tracks
-from console.forms import EvaluateForm, add_service_error
+from console.forms import EvaluateForm
 from console.model_form import HP_LABELS, PPO_ONLY, SAC_ONLY
 from console.views.owned import owned_evaluation, owned_model, owned_training_job
+from console.views.service_calls import attempt, attempt_on_form
 from training import selectors, services
-from training.models import JobStatus, RacingModel
+from training.models import RacingModel
 from training.rl.policies import NETWORK_LABELS
 
 SENSOR_LABELS = {"FRONT_FACING_CAMERA": "Camera", "STEREO_CAMERAS": "Stereo camera"}
@@ -39,7 +40,7 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
         evaluate_form = EvaluateForm(
             initial={"track_id": model.track_id, "direction": model.direction}
         )
-    trained = job is not None and job.status == JobStatus.COMPLETED
+    actions = selectors.model_actions(model, job)
     context = {
         "nav": "models",
         "model": model,
@@ -51,8 +52,8 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
         "hyperparameter_rows": hyperparameter_rows(model),
         "job": job,
         "chart_points": selectors.chart_points(job) if job else [],
-        "can_start": not model.is_busy and not trained and not (job and job.is_active),
-        "can_evaluate": model.has_checkpoint and not model.is_busy,
+        "can_start": actions.can_train,
+        "can_evaluate": actions.can_evaluate,
         "evaluations": evaluations,
         "evaluation": evaluations[0] if evaluations else None,
         "evaluate_form": evaluate_form,
@@ -70,12 +71,8 @@ def model_detail(request: HttpRequest, model_id: int) -> HttpResponse:
 @require_POST
 def training_start(request: HttpRequest, model_id: int) -> HttpResponse:
     model = owned_model(request, model_id)
-    try:
-        services.training_start(model=model, user=request.user)
-    except services.ServiceError as exc:
-        messages.error(request, exc.sentence)
-    else:
-        messages.success(request, "Training queued: it starts as soon as a worker is free.")
+    attempt(request, lambda: services.training_start(model=model, user=request.user),
+            success="Training queued: it starts as soon as a worker is free.")  # fmt: skip
     return redirect("model-detail", model_id=model.pk)
 
 
@@ -83,12 +80,8 @@ def training_start(request: HttpRequest, model_id: int) -> HttpResponse:
 @require_POST
 def training_stop(request: HttpRequest, job_id: int) -> HttpResponse:
     job = owned_training_job(request, job_id)
-    try:
-        services.job_stop(job=job, user=request.user)
-    except services.ServiceError as exc:
-        messages.error(request, exc.sentence)
-    else:
-        messages.success(request, "Stopping: the model keeps its last checkpoint.")
+    attempt(request, lambda: services.job_stop(job=job, user=request.user),
+            success="Stopping: the model keeps its last checkpoint.")  # fmt: skip
     return redirect("model-detail", model_id=job.model_id)
 
 
@@ -99,8 +92,9 @@ def evaluation_start(request: HttpRequest, model_id: int) -> HttpResponse:
     form = EvaluateForm(request.POST)
     if form.is_valid():
         data = form.cleaned_data
-        try:
-            services.evaluation_start(
+        job, _ = attempt_on_form(
+            form,
+            lambda: services.evaluation_start(
                 model=model,
                 user=request.user,
                 track_id=data["track_id"],
@@ -108,10 +102,9 @@ def evaluation_start(request: HttpRequest, model_id: int) -> HttpResponse:
                 laps=data["laps"],
                 off_track_penalty_s=data["off_track_penalty_s"],
                 crash_penalty_s=data["crash_penalty_s"],
-            )
-        except services.ServiceError as exc:
-            add_service_error(form, exc.message, exc.field)
-        else:
+            ),
+        )
+        if job is not None:
             messages.success(request, "Evaluation queued.")
             return redirect(f"/models/{model.pk}/#evaluation")
     return _page(request, model, evaluate_form=form, status=400)
@@ -121,8 +114,5 @@ def evaluation_start(request: HttpRequest, model_id: int) -> HttpResponse:
 @require_POST
 def evaluation_stop(request: HttpRequest, evaluation_id: int) -> HttpResponse:
     evaluation = owned_evaluation(request, evaluation_id)
-    try:
-        services.job_stop(job=evaluation, user=request.user)
-    except services.ServiceError as exc:
-        messages.error(request, exc.sentence)
+    attempt(request, lambda: services.job_stop(job=evaluation, user=request.user))
     return redirect(f"/models/{evaluation.model_id}/#evaluation")

@@ -9,9 +9,10 @@ from django.shortcuts import redirect, render
 from django.views.decorators.http import require_http_methods, require_safe
 
 from console import tracks
-from console.forms import CloneForm, ImportForm, add_service_error
+from console.forms import CloneForm, ImportForm
 from console.model_form import HP_FIELDS, PPO_ONLY, SAC_ONLY, ModelCreateForm
 from console.views.owned import owned_model
+from console.views.service_calls import attempt_on_form
 from training import selectors, services
 from training.rewards.examples import EXAMPLES, example_source
 
@@ -68,8 +69,9 @@ def model_create(request: HttpRequest) -> HttpResponse:
     if not form.is_valid():
         return _create_page(request, form)
     data = form.cleaned_data
-    try:
-        model = services.model_create(
+    model, reward_errors = attempt_on_form(
+        form,
+        lambda: services.model_create(
             owner=request.user,
             name=data["name"],
             description=data["description"],
@@ -83,13 +85,10 @@ def model_create(request: HttpRequest) -> HttpResponse:
             hyperparameters=data["hyperparameters"],
             reward_function=data["reward_function"],
             max_minutes=data["max_minutes"],
-        )
-    except services.RewardRejected as exc:
-        add_service_error(form, "The reward function has errors; see the marked lines.", exc.field)
-        return _create_page(request, form, reward_errors=exc.errors)
-    except services.ServiceError as exc:
-        add_service_error(form, exc.message, exc.field)
-        return _create_page(request, form)
+        ),
+    )
+    if model is None:
+        return _create_page(request, form, reward_errors=reward_errors)
     messages.success(request, f"Model {model.name} created. Start training when you are ready.")
     return redirect("model-detail", model_id=model.pk)
 
@@ -110,8 +109,9 @@ def model_clone(request: HttpRequest, model_id: int) -> HttpResponse:
     reward_errors: list[dict] = []
     if request.method == "POST" and form.is_valid():
         data = form.cleaned_data
-        try:
-            clone = services.model_clone(
+        clone, reward_errors = attempt_on_form(
+            form,
+            lambda: services.model_clone(
                 model=source,
                 owner=request.user,
                 name=data["name"],
@@ -120,15 +120,9 @@ def model_clone(request: HttpRequest, model_id: int) -> HttpResponse:
                 direction=data["direction"],
                 reward_function=data["reward_function"],
                 max_minutes=data["max_minutes"],
-            )
-        except services.RewardRejected as exc:
-            add_service_error(
-                form, "The reward function has errors; see the marked lines.", exc.field
-            )
-            reward_errors = exc.errors
-        except services.ServiceError as exc:
-            add_service_error(form, exc.message, exc.field)
-        else:
+            ),
+        )
+        if clone is not None:
             messages.success(request, f"Model {clone.name} cloned from {source.name}.")
             return redirect("model-detail", model_id=clone.pk)
     context = {"nav": "models", "form": form, "source": source, **_editor_context(reward_errors)}
@@ -142,16 +136,16 @@ def model_import(request: HttpRequest) -> HttpResponse:
     form = ImportForm(request.POST or None, request.FILES or None)
     if request.method == "POST" and form.is_valid():
         data = form.cleaned_data
-        try:
-            model = services.model_import(
+        model, _ = attempt_on_form(
+            form,
+            lambda: services.model_import(
                 owner=request.user,
                 name=data["name"],
                 description=data["description"],
                 upload=data["archive"],
-            )
-        except services.ServiceError as exc:
-            add_service_error(form, exc.message, exc.field)
-        else:
+            ),
+        )
+        if model is not None:
             messages.success(request, f"Model {model.name} imported.")
             return redirect("model-detail", model_id=model.pk)
     status = 400 if form.is_bound and form.errors else 200

@@ -10,8 +10,8 @@ from channels.testing import WebsocketCommunicator
 from django.conf import settings
 from django.test import Client
 
+from training import live
 from training.models import EvaluationJob, IterationMetric, JobStatus, TrainingJob
-from training.worker import live
 
 pytestmark = pytest.mark.django_db(transaction=True)
 

@@ -100,7 +100,7 @@ def test_create_with_errors_keeps_every_value(alice_client, store_dir) -> None:
     page = response.content.decode()
     assert 'value="bad name"' in page and "Keep this text" in page
     assert "Use 1-64 letters, digits or hyphens." in page
-    assert 'value="45"' in page and "between -30 and 30 degrees" in page
+    assert 'value="45"' in page and "Steering angle 45 is outside -30..30 degrees." in page
     assert "Ensure this value is less than or equal to 10." in page
     assert "Ensure this value is less than or equal to 1440." in page
     assert "return 0.5  # mine" in html.unescape(page)
@@ -117,7 +117,7 @@ def test_too_few_actions_and_other_race_types_are_refused(alice_client, store_di
     data = create_data(action_steering=["0"], action_speed=["1"], race_type="HEAD_TO_BOT")
     page = alice_client.post("/models/new/", data).content.decode()
     assert "2 to 30 actions; this one has 1" in page
-    assert "coming soon" in page
+    assert "does not have yet; choose Time trial" in page  # the services' rule, on the field
 
 
 def test_reward_errors_are_shown_with_their_lines(alice_client, store_dir) -> None:
@@ -214,11 +214,10 @@ def test_import_errors_are_clear(alice_client, store_dir) -> None:
 
 def test_start_training_and_stop_it(alice_model, alice_client, monkeypatch,
                                     django_capture_on_commit_callbacks) -> None:  # fmt: skip
-    from training import tasks
+    from training import dispatch
 
     queued = []
-    monkeypatch.setattr(tasks.train_model, "delay",
-                        lambda pk: queued.append(pk) or type("R", (), {"id": "t"})())  # fmt: skip
+    monkeypatch.setattr(dispatch, "send", lambda name, pk: queued.append(pk) or "t")
     with django_capture_on_commit_callbacks(execute=True):
         response = alice_client.post(f"/models/{alice_model.pk}/train/")
     assert response.status_code == 302

@@ -2,10 +2,10 @@
 this process with a progress bar, following a queued job, and the evaluation results table.
 
 A job run inline goes through the same code as a Celery worker
-(:func:`training.worker.jobs.run_training_job`), in a background thread; the main thread polls the
-database, draws the bar and turns Ctrl-C into a stop request (``stop_requested``), so the job
-ends cleanly and keeps its last checkpoint. Sandboxed rollout workers run in their own session,
-so a Ctrl-C on the terminal does not reach them.
+(:func:`training.worker.training.run_training_job`), in a background thread; the main thread
+polls the database, draws the bar and turns Ctrl-C into a stop request (``stop_requested``), so
+the job ends cleanly and keeps its last checkpoint. Sandboxed rollout workers run in their own
+session, so a Ctrl-C on the terminal does not reach them.
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ from django.db import connections
 
 from racing.rules import STATUS_LABELS, Status
 from training import services
-from training.cli_services import model_for_cli, user_by_username
 from training.management.progress import ProgressBar
 from training.models import (
     FINISHED_JOB_STATUSES,
@@ -34,6 +33,7 @@ from training.models import (
     JobStatus,
     TrainingJob,
 )
+from training.selectors import model_for_cli, user_by_username
 from training.services import RewardRejected, ServiceError
 
 POLL_S = 0.5
@@ -158,7 +158,7 @@ def run_inline(
     out: OutputWrapper,
     tty: bool | None = None,
 ) -> Job:
-    """Run ``run(job_id, worker)`` (a task body from :mod:`training.worker.jobs`) in a thread of
+    """Run ``run(job_id, worker)`` (a task body from :mod:`training.worker`) in a thread of
     this process, with a progress bar. The first Ctrl-C asks the job to stop and waits for its clean
     end; a second one gives up on it (the job is marked failed). Returns the finished row."""
     failure: list[BaseException] = []
@@ -245,7 +245,7 @@ def exit_now(code: int) -> None:
 def quiet_live_updates() -> Iterator[None]:
     """Live updates are for browsers watching the job; without Redis (a command run with no
     console up) each one would log a traceback. Only errors are logged meanwhile."""
-    logger = logging.getLogger("training.worker.live")
+    logger = logging.getLogger("training.live")
     level = logger.level
     logger.setLevel(logging.ERROR)
     try:

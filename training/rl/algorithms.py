@@ -23,6 +23,7 @@ from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.vec_env import VecEnv
 
+from training.rl.checkpoints import load_weights
 from training.rl.hyperparams import Hyperparameters
 from training.rl.policies import LEAN, policy_kwargs, sac_policy_kwargs
 
@@ -165,8 +166,6 @@ def load_model(
 ) -> DeepRacerPPO | DeepRacerSAC:
     """A model built for ``env`` with the weights of a saved one (``model.save`` bytes), to
     train further or to drive. Nothing in ``data`` is unpickled (see training.rl.checkpoints)."""
-    from training.rl.checkpoints import load_weights
-
     model = build_model(algorithm, env, hp, network=network, seed=seed)
     load_weights(model, data)
     return model

@@ -182,7 +182,11 @@ def build_metadata(
         )
     algorithm = _choice("training_algorithm", training_algorithm, ALGORITHMS, lower=True)
     if algorithm == "sac" and kind != "continuous":
-        raise MetadataError("training_algorithm", "sac needs a continuous action space")
+        raise MetadataError(
+            "training_algorithm",
+            "SAC works only with a continuous action space: choose PPO or a continuous "
+            "action space",
+        )
     return ModelMetadata(
         actions=actions,
         training_algorithm=algorithm,

@@ -1,4 +1,5 @@
-"""The training loop, as DeepRacer runs it, on stable-baselines3. No ORM here: the Celery task
+"""The training loop, as DeepRacer runs it, on stable-baselines3. No Django here: the job that
+runs it (``training.worker``) passes in where rollouts run (a :class:`RolloutBackend`) and
 turns the hooks into database rows, stored objects and websocket messages.
 
 One iteration: the rollout workers drive about ``num_episodes_between_training`` episodes with
@@ -28,13 +29,13 @@ from training.rl.algorithms import (
 )
 from training.rl.hyperparams import Hyperparameters
 from training.rl.policies import LEAN
+from training.rollout.backends import LocalRollouts, RolloutBackend
 from training.rollout.envs import EnvSpec
-from training.rollout.vecenv import make_vec_env
 
 INITIAL_EPISODE_STEPS = 40.0
+"""Guess of an early episode's length (steps) before any has finished."""
 MAX_SAC_CHUNKS = 200
 """An SAC iteration ends after this many chunks even if fewer episodes finished."""
-"""Guess of an early episode's length (steps) before any has finished."""
 
 
 @dataclass
@@ -50,15 +51,14 @@ class TrainingConfig:
     reward_source: str | None = None
     reward_function: Callable[[dict], float] | None = None
     num_envs: int = 8
-    num_workers: int = 2
+    rollouts: RolloutBackend = field(default_factory=LocalRollouts)
+    """Where training episodes run; evaluation episodes always run on this machine."""
     seed: int = 0
     eval_episodes: int = 5
     eval_laps: int = 1
     eval_from_start_line: bool = False
     initial_checkpoint: bytes | None = None
     torch_threads: int = 2
-    remote: dict | None = None
-    """Rollouts on simulation machines: ``{"redis_url", "prefix", "slots"}`` (None: here)."""
 
 
 @dataclass
@@ -166,13 +166,12 @@ class TrainingLoop:
         self.rollout_done_at = 0.0
         self.longest_seen = 0  # steps of the longest episode seen so far, finished or not
         set_torch_threads(config.torch_threads)
-        self.venv: VecEnv = make_vec_env(
+        self.venv: VecEnv = config.rollouts.make(
             config.spec,
             config.num_envs,
             reward_source=config.reward_source,
             reward_function=config.reward_function,
-            num_workers=config.num_workers,
-            remote=config.remote,
+            phase="training",
         )
         eval_spec = config.spec
         if config.eval_laps > 1 or config.eval_from_start_line:
@@ -180,12 +179,12 @@ class TrainingLoop:
                 {**config.spec.to_json(), "start": "start_line", "alternate_direction": False,
                  "rules": {**config.spec.rules, "laps": config.eval_laps}}
             )  # fmt: skip
-        self.eval_venv: VecEnv = make_vec_env(
+        self.eval_venv: VecEnv = LocalRollouts(num_workers=1).make(
             eval_spec,
             config.eval_episodes,
             reward_source=config.reward_source,
             reward_function=config.reward_function,
-            num_workers=1,
+            phase="evaluation",
         )
         self.venv.seed(config.seed)
         if config.initial_checkpoint is not None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import time
 import uuid
+from collections.abc import Callable
 from typing import Any
 
 import redis
@@ -23,6 +24,8 @@ from training.sandbox import SandboxCrashed, SandboxProcess, checked
 from training.sandbox.protocol import ProtocolError, decode, encode
 
 log = logging.getLogger(__name__)
+LaunchWorker = Callable[..., None]
+"""Starts one :func:`serve_rollout` on a simulation machine with the given keyword arguments."""
 START_TIMEOUT_S = 120.0
 IDLE_TIMEOUT_S = 600.0
 KEY_TTL_S = 3600
@@ -127,10 +130,9 @@ class RemoteVecEnv(_WorkerVecEnv):
     fails; the reward's own errors come through as they do locally.
     """
 
-    def __init__(self, spec: EnvSpec, num_envs: int, reward_source: str, *, num_slots: int,
-                 redis_url: str, prefix: str = "", phase: str = "training") -> None:  # fmt: skip
-        from training.tasks import simulate_rollout
-
+    def __init__(self, spec: EnvSpec, num_envs: int, reward_source: str, *, launch: LaunchWorker,
+                 num_slots: int, redis_url: str, prefix: str = "",
+                 phase: str = "training") -> None:  # fmt: skip
         num_slots = max(1, min(num_slots, num_envs))
         self.sizes = [num_envs // num_slots + (1 if i < num_envs % num_slots else 0)
                       for i in range(num_slots)]  # fmt: skip
@@ -141,7 +143,7 @@ class RemoteVecEnv(_WorkerVecEnv):
         session = uuid.uuid4().hex
         self.slots = [RemoteSlot(self.client, prefix, session, i) for i in range(num_slots)]
         for i, size in enumerate(self.sizes):
-            simulate_rollout.delay(
+            launch(
                 redis_url=redis_url, prefix=prefix, session=session, slot=i,
                 args={"spec": spec.to_json(), "num_envs": size, "phase": phase},
                 reward_source=reward_source,

@@ -293,31 +293,3 @@ class SandboxedVecEnv(_WorkerVecEnv):
                 pass
             worker.close(grace_seconds=2.0)
         self.workers = []
-
-
-def make_vec_env(
-    spec: EnvSpec,
-    num_envs: int,
-    *,
-    reward_source: str | None = None,
-    reward_function: Callable[[dict], float] | None = None,
-    num_workers: int = 2,
-    remote: dict | None = None,
-) -> VecEnv:
-    """Sandboxed workers for a user's ``reward_source`` (on this machine, or on simulation
-    machines when ``remote`` gives ``{"redis_url", "prefix", "slots"}``); in-process for a
-    trusted callable."""
-    if reward_source is not None and remote:
-        from training.rollout.remote import RemoteVecEnv
-
-        return RemoteVecEnv(
-            spec,
-            num_envs,
-            reward_source,
-            num_slots=int(remote["slots"]),
-            redis_url=remote["redis_url"],
-            prefix=remote.get("prefix", ""),
-        )
-    if reward_source is not None:
-        return SandboxedVecEnv(spec, num_envs, reward_source, num_workers=num_workers)
-    return LocalVecEnv(spec, num_envs, reward_function)

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+from training.errors import ServiceError
 from training.interchange.export import (
     build_car_archive,
     build_logs_archive,
     build_virtual_model_archive,
+    export_onnx,
 )
 from training.models import EvaluationJob, RacingModel
-from training.services import ServiceError, model_metadata
+from training.rl.checkpoints import load_checkpoint
+from training.services.models import model_metadata
 from training.storage import ObjectNotFound, StoreError
 from training.store import get_store, keys_for
 
@@ -26,9 +31,6 @@ def car_model_archive(model: RacingModel) -> bytes:
         return store.get_bytes(keys.car_export)
     except ObjectNotFound:
         pass
-    from training.interchange.export import export_onnx
-    from training.rl.checkpoints import load_checkpoint
-
     metadata = model_metadata(model)
     try:
         policy = load_checkpoint(store.get_bytes(keys.best), metadata)
@@ -39,42 +41,44 @@ def car_model_archive(model: RacingModel) -> bytes:
     return data
 
 
+def _collect(model: RacingModel, keep: Callable[[str], bool], what: str) -> dict[str, bytes]:
+    """The model's stored files whose name (inside its folder) ``keep`` accepts."""
+    store, prefix = get_store(), keys_for(model.pk).prefix
+    try:
+        return {
+            key[len(prefix) :]: store.get_bytes(key)
+            for key in store.list(prefix)
+            if keep(key[len(prefix) :])
+        }
+    except StoreError as exc:
+        raise ServiceError(f"the model's {what} could not be read: {exc}") from None
+
+
+def _in_virtual_model(name: str) -> bool:
+    if name == "model/initial.zip":  # where a clone started: not part of the model
+        return False
+    return name.startswith(("model/", "ip/", "metrics/TrainingMetrics")) or name == (
+        "reward_function.py"
+    )
+
+
+def _in_logs(name: str) -> bool:
+    return name.startswith(("training-simtrace/", "metrics/", "evaluation/")) or name in (
+        "reward_function.py",
+        "model/model_metadata.json",
+        "ip/hyperparameters.json",
+    )
+
+
 def virtual_model_archive(model: RacingModel) -> bytes:
     """The whole model (re-importable): metadata, hyperparameters, reward, checkpoints."""
     _need_checkpoint(model)
-    store, keys = get_store(), keys_for(model.pk)
-    prefix = keys.prefix
-    files: dict[str, bytes] = {}
-    try:
-        for key in store.list(prefix):
-            name = key[len(prefix) :]
-            if name.startswith(("model/", "ip/", "metrics/TrainingMetrics")) or name == (
-                "reward_function.py"
-            ):
-                if name == "model/initial.zip":
-                    continue
-                files[name] = store.get_bytes(key)
-    except StoreError as exc:
-        raise ServiceError(f"the model's files could not be read: {exc}") from None
-    return build_virtual_model_archive(files)
+    return build_virtual_model_archive(_collect(model, _in_virtual_model, "files"))
 
 
 def logs_archive(model: RacingModel) -> bytes:
     """Sim-traces, metrics and evaluation logs in DeepRacer-for-Cloud's folder layout."""
-    store, keys = get_store(), keys_for(model.pk)
-    prefix = keys.prefix
-    files: dict[str, bytes] = {}
-    try:
-        for key in store.list(prefix):
-            name = key[len(prefix) :]
-            if name.startswith(("training-simtrace/", "metrics/", "evaluation/")) or name in (
-                "reward_function.py",
-                "model/model_metadata.json",
-                "ip/hyperparameters.json",
-            ):
-                files[name] = store.get_bytes(key)
-    except StoreError as exc:
-        raise ServiceError(f"the model's logs could not be read: {exc}") from None
+    files = _collect(model, _in_logs, "logs")
     if not any(n.startswith(("training-simtrace/", "evaluation/")) for n in files):
         raise ServiceError("there are no logs yet: train or evaluate the model first")
     return build_logs_archive(files)

@@ -22,10 +22,11 @@ from celery import current_app
 from celery.result import AsyncResult
 from django.conf import settings
 
+from training.dispatch import VALIDATE_REWARD
+from training.errors import RewardRejected, ServiceError
 from training.sandbox import MAX_SOURCE_CHARS
-from training.services import RewardRejected, ServiceError, check_reward, check_track
+from training.services.checks import check_reward, check_track
 
-TASK_NAME = "training.tasks.validate_reward"
 #: How long an id stays readable and a slot stays taken without an answer (seconds).
 KEY_TTL_S = 15 * 60
 
@@ -101,7 +102,7 @@ def reward_validation_start(*, user_id: int, source: str, track_id: str, directi
         client.expire(_key("active", user_id), KEY_TTL_S)
         try:
             current_app.send_task(
-                TASK_NAME, kwargs={"source": source, "track_id": track_id,
+                VALIDATE_REWARD, kwargs={"source": source, "track_id": track_id,
                                    "direction": direction}, task_id=task_id,
             )  # fmt: skip
         except Exception as exc:  # noqa: BLE001 - a task that cannot be queued is refused

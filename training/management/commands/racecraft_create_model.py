@@ -10,10 +10,10 @@ from typing import Any
 from django.core.management.base import BaseCommand, CommandError
 
 from training import services
-from training.cli_services import user_by_username
 from training.management.cli import add_owner_argument, service_errors
 from training.models import Direction
 from training.rl.metadata import MetadataError, parse_metadata
+from training.selectors import user_by_username
 
 
 def read_bytes(path: str, what: str) -> bytes:

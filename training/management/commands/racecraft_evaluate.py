@@ -18,7 +18,7 @@ from training.management.cli import (
     service_errors,
 )
 from training.models import Direction
-from training.worker import jobs
+from training.worker.evaluation import run_evaluation_job
 
 
 class Command(BaseCommand):
@@ -76,7 +76,7 @@ class Command(BaseCommand):
             f"Evaluation {job.pk} of model {model.pk} ({model.name}): {where}, {job.laps} laps "
             f"on {job.track_id} ({job.direction})"
         )
-        done = run_or_follow(job=job, queue=queue, user=user, run=jobs.run_evaluation_job,
+        done = run_or_follow(job=job, queue=queue, user=user, run=run_evaluation_job,
                              progress=evaluation_progress, out=self.stdout)  # fmt: skip
         if done is None:
             return

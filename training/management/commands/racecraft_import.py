@@ -8,8 +8,8 @@ from typing import Any
 from django.core.management.base import BaseCommand, CommandError
 
 from training import services
-from training.cli_services import user_by_username
 from training.management.cli import add_owner_argument, service_errors
+from training.selectors import user_by_username
 
 
 class Command(BaseCommand):

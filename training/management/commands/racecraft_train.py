@@ -18,7 +18,7 @@ from training.management.cli import (
     training_progress,
 )
 from training.models import TrainingJob
-from training.worker import jobs
+from training.worker.training import run_training_job
 
 
 class Command(BaseCommand):
@@ -47,7 +47,7 @@ class Command(BaseCommand):
             f"Training job {job.pk} of model {model.pk} ({model.name}): {where}, "
             f"up to {job.max_minutes} min on {model.track_id}"
         )
-        done = run_or_follow(job=job, queue=queue, user=user, run=jobs.run_training_job,
+        done = run_or_follow(job=job, queue=queue, user=user, run=run_training_job,
                              progress=training_progress, out=self.stdout)  # fmt: skip
         if done is None:
             return  # the user stopped following a queued job; it goes on in the worker

@@ -122,14 +122,14 @@ def test_only_the_owner_can_act(alice, bob, django_capture_on_commit_callbacks):
 def test_start_queues_after_commit_and_a_broker_failure_fails_the_job(
     alice, monkeypatch, django_capture_on_commit_callbacks
 ):
-    from training import tasks
+    from training import dispatch
 
     model = create(alice)
 
     def broken(*args, **kwargs):
         raise ConnectionError("broker unreachable")
 
-    monkeypatch.setattr(tasks.train_model, "delay", broken)
+    monkeypatch.setattr(dispatch, "send", broken)
     with django_capture_on_commit_callbacks(execute=True):
         job = services.training_start(model=model, user=alice)
     job.refresh_from_db()
@@ -139,9 +139,9 @@ def test_start_queues_after_commit_and_a_broker_failure_fails_the_job(
 
 
 def test_job_quota_and_busy_model(alice, settings, monkeypatch, django_capture_on_commit_callbacks):
-    from training import tasks
+    from training import dispatch
 
-    monkeypatch.setattr(tasks.train_model, "delay", lambda pk: type("R", (), {"id": "t"})())
+    monkeypatch.setattr(dispatch, "send", lambda name, pk: "t")
     settings.RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = 1
     first, second = create(alice, name="a"), create(alice, name="b")
     with django_capture_on_commit_callbacks(execute=True):
@@ -154,9 +154,9 @@ def test_job_quota_and_busy_model(alice, settings, monkeypatch, django_capture_o
 
 
 def test_stopping_a_queued_job_cancels_it(alice, monkeypatch, django_capture_on_commit_callbacks):
-    from training import tasks
+    from training import dispatch
 
-    monkeypatch.setattr(tasks.train_model, "delay", lambda pk: type("R", (), {"id": "t"})())
+    monkeypatch.setattr(dispatch, "send", lambda name, pk: "t")
     model = create(alice)
     job = services.training_start(model=model, user=alice)
     job = services.job_stop(job=job, user=alice)
@@ -231,7 +231,7 @@ def test_a_heartbeat_thread_stamps_a_running_job(alice):
     """The stamp comes from a thread of its own, so a long policy update cannot starve it."""
     import time
 
-    from training.worker.jobs import Heartbeat
+    from training.worker.common import Heartbeat
 
     model = create(alice)
     job = TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS)

@@ -23,7 +23,7 @@ from training.models import EvaluationJob, IterationMetric, JobStatus, RacingMod
 from training.services import downloads
 from training.store import get_store, keys_for
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
 REWARD = """
 def reward_function(params):

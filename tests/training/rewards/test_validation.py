@@ -16,7 +16,7 @@ from training.rewards.validation import SITUATIONS, situation_params, validate_r
 from training.sandbox import MAX_SOURCE_CHARS, SandboxLimits, check_source
 
 TRACK = "racecraft_oval"
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 @pytest.mark.parametrize(

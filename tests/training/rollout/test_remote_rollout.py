@@ -3,6 +3,7 @@ sandboxed rollout through real Redis, and gives exactly what a local sandboxed w
 
 from __future__ import annotations
 
+import functools
 import os
 import subprocess
 import sys
@@ -16,7 +17,7 @@ import pytest
 from training.rollout.envs import EnvSpec
 from training.rollout.vecenv import RolloutError, SandboxedVecEnv
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 REWARD = """
 state = {"last": None}
 
@@ -69,11 +70,13 @@ def run(venv, steps: int = 40):
 
 
 def test_remote_rollout_matches_a_local_one(simulation_worker, redis_url, settings):
+    from training import dispatch
     from training.rollout.remote import RemoteVecEnv
 
+    launch_simulation_worker = functools.partial(dispatch.send, dispatch.SIMULATE_ROLLOUT)
     spec = EnvSpec(track="racecraft_summit")
-    remote = RemoteVecEnv(spec, 4, REWARD, num_slots=2, redis_url=redis_url,
-                          prefix=settings.REDIS_PREFIX)  # fmt: skip
+    remote = RemoteVecEnv(spec, 4, REWARD, launch=launch_simulation_worker, num_slots=2,
+                          redis_url=redis_url, prefix=settings.REDIS_PREFIX)  # fmt: skip
     assert remote.sizes == [2, 2]
     local = SandboxedVecEnv(spec, 4, REWARD, num_workers=2)
     rf, rr, rs = run(remote)
@@ -85,10 +88,12 @@ def test_remote_rollout_matches_a_local_one(simulation_worker, redis_url, settin
 
 
 def test_no_simulation_worker_is_a_clear_error(redis_url, settings, monkeypatch):
-    from training.rollout.envs import remote
+    from training.rollout import remote
 
     monkeypatch.setattr(remote, "START_TIMEOUT_S", 2.0)
-    monkeypatch.setattr("training.tasks.simulate_rollout.delay", lambda **kwargs: None)
+    launched = []
     with pytest.raises(RolloutError, match="no simulation worker took the rollout"):
-        remote.RemoteVecEnv(EnvSpec(track="racecraft_oval"), 2, REWARD, num_slots=1,
+        remote.RemoteVecEnv(EnvSpec(track="racecraft_oval"), 2, REWARD,
+                            launch=lambda **kwargs: launched.append(kwargs), num_slots=1,
                             redis_url=redis_url, prefix=settings.REDIS_PREFIX)  # fmt: skip
+    assert [k["slot"] for k in launched] == [0]  # the job's launcher was asked for one worker

@@ -1,0 +1,149 @@
+"""Checks shared by the services: tracks, model configuration, reward functions, names, quotas.
+
+Each raises :class:`~training.errors.ServiceError` naming the form field to show the
+message on.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from django.conf import settings
+
+from racing.track import Track, TrackError
+from racing.tracks import TrackCatalog, UnknownTrackError
+from training.errors import RewardRejected, ServiceError
+from training.models import MODEL_NAME_RE, Direction, RaceType, RacingModel
+from training.rewards.validation import validate_reward_function
+from training.rl.hyperparams import HyperparameterError, parse_hyperparameters
+from training.rl.metadata import MetadataError, ModelMetadata, build_metadata
+from training.sandbox import MAX_SOURCE_CHARS
+
+MIN_MINUTES, MAX_MINUTES = 1, 1440
+SUPPORTED_RACE_TYPES = (RaceType.TIME_TRIAL,)
+
+
+def track_catalog() -> TrackCatalog:
+    """The built-in tracks and those imported into ``RACECRAFT_TRACKS_DIR``: the one catalogue
+    the console, the services and the jobs use."""
+    return TrackCatalog([settings.RACECRAFT_TRACKS_DIR])
+
+
+def limit(name: str, default: int) -> int:
+    """An integer limit from settings (``RACECRAFT_MAX_*``)."""
+    return int(getattr(settings, name, default))
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A validated model configuration."""
+
+    metadata: ModelMetadata
+    hyperparameters: dict
+    track_id: str
+    direction: str
+    race_type: str
+    max_minutes: int
+
+
+def check_track(track_id: str, direction: str) -> Track:
+    """The track ``track_id`` driven in ``direction``."""
+    try:
+        track = track_catalog().load(track_id)
+    except (UnknownTrackError, TrackError):
+        raise ServiceError(f"unknown track {track_id!r}", field="track_id") from None
+    if direction not in Direction.values:
+        raise ServiceError("direction must be native, ccw or cw", field="direction")
+    if not track.closed and direction != Direction.NATIVE:
+        raise ServiceError("this track is an open route: it has one direction", field="direction")
+    return track.in_direction(direction)
+
+
+def check_race_type(race_type: str) -> None:
+    """A race type the simulator can run."""
+    if race_type not in RaceType.values:
+        raise ServiceError(f"unknown race type {race_type!r}", field="race_type")
+    if race_type not in SUPPORTED_RACE_TYPES:
+        raise ServiceError(
+            f"{RaceType(race_type).label} needs obstacles and bot cars, which the simulator "
+            "does not have yet; choose Time trial",
+            field="race_type",
+        )
+
+
+def check_model_spec(
+    *,
+    track_id: str,
+    direction: str,
+    race_type: str,
+    sensors: list[str],
+    action_space: list | dict,
+    algorithm: str,
+    neural_network: str,
+    hyperparameters: dict | None,
+    max_minutes: int,
+) -> ModelSpec:
+    """The whole configuration of a new model, checked; raises on the first problem."""
+    check_track(track_id, direction)
+    check_race_type(race_type)
+    try:
+        metadata = build_metadata(
+            action_space=action_space,
+            training_algorithm=algorithm,
+            sensor=list(sensors),
+            neural_network=neural_network,
+        )
+    except MetadataError as exc:
+        raise ServiceError(exc.message, field=_metadata_field(exc.field)) from None
+    try:
+        hp = parse_hyperparameters(hyperparameters or {}, algorithm)
+    except HyperparameterError as exc:
+        raise ServiceError(str(exc), field="hyperparameters") from None
+    if not isinstance(max_minutes, int) or not MIN_MINUTES <= max_minutes <= MAX_MINUTES:
+        raise ServiceError(
+            f"the stop condition is {MIN_MINUTES}-{MAX_MINUTES} minutes", field="max_minutes"
+        )
+    return ModelSpec(metadata, hp.to_json(), track_id, direction, race_type, max_minutes)
+
+
+def _metadata_field(field: str) -> str:
+    return {
+        "training_algorithm": "algorithm",
+        "sensor": "sensors",
+        "action_space_type": "action_space",
+    }.get(field, field)
+
+
+def check_reward(source: str, track_id: str, direction: str = "native") -> dict:
+    """Validate a reward function on the track (static checks, then sandboxed runs)."""
+    if not isinstance(source, str) or not source.strip():
+        raise ServiceError("write a reward function", field="reward_function")
+    if len(source) > MAX_SOURCE_CHARS:
+        raise ServiceError(
+            f"the reward function is {len(source):,} characters; the limit is {MAX_SOURCE_CHARS:,}",
+            field="reward_function",
+        )
+    track = check_track(track_id, direction)
+    result = validate_reward_function(source, track)
+    if not result.ok:
+        raise RewardRejected(result.errors)
+    return {"rewards": result.rewards}
+
+
+def check_name(owner, name: str, *, exclude: int | None = None) -> None:
+    """A valid model name the owner does not use yet."""
+    if not isinstance(name, str) or not re.match(MODEL_NAME_RE, name):
+        raise ServiceError("a model name is 1-64 letters, digits or hyphens", field="name")
+    taken = RacingModel.objects.filter(owner=owner, name=name)
+    if exclude is not None:
+        taken = taken.exclude(pk=exclude)
+    if taken.exists():
+        raise ServiceError(f"you already have a model named {name!r}", field="name")
+
+
+def check_model_quota(owner) -> None:
+    """Room for one more model within ``RACECRAFT_MAX_MODELS_PER_USER``."""
+    most = limit("RACECRAFT_MAX_MODELS_PER_USER", 50)
+    if RacingModel.objects.filter(owner=owner).count() >= most:
+        raise ServiceError(f"you have {most} models, the most allowed; delete one to make room")

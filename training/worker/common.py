@@ -1,0 +1,123 @@
+"""What training and evaluation jobs share on the worker: heartbeats, the env spec of a model,
+sim-trace CSV, the stop flag, and where rollouts run."""
+
+from __future__ import annotations
+
+import functools
+import logging
+import threading
+import time
+
+from django.conf import settings
+from django.db import connection
+
+from racing.simtrace import SIMTRACE_COLUMNS, TraceRow
+from training import dispatch
+from training.models import RacingModel
+from training.rollout.backends import LocalRollouts, RedisRollouts, RolloutBackend
+from training.rollout.envs import EnvSpec
+from training.services import job_fail, job_heartbeat, job_stop_requested
+
+log = logging.getLogger(__name__)
+STOP_POLL_S = 1.0
+"""How often a running job reads its stop flag from the database, seconds."""
+HEARTBEAT_S = 15.0
+"""How often a running job stamps its heartbeat, seconds (the reaper waits 300 s)."""
+
+
+class Heartbeat:
+    """Stamps the job's heartbeat every ``every`` seconds from a thread of its own while a job
+    runs, however long one policy update takes. If the worker process dies, the stamps stop
+    and the orphan reaper (:func:`training.services.jobs_reap_orphans`) fails the job."""
+
+    def __init__(self, job_model, job_id: int, every: float = HEARTBEAT_S) -> None:
+        self._job_model, self._job_id = job_model, job_id
+        self._every = every
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"heartbeat-{job_id}", daemon=True)
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.wait(self._every):
+                try:
+                    job_heartbeat(job_model=self._job_model, job_id=self._job_id)
+                except Exception:  # noqa: BLE001 - a missed beat is retried on the next one
+                    log.warning("could not record a heartbeat", exc_info=True)
+        finally:
+            connection.close()
+
+    def __enter__(self) -> Heartbeat:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+class StopFlag:
+    """``stop()`` answers whether the job's owner asked it to stop, reading the database at
+    most every ``STOP_POLL_S`` seconds (it is polled on every simulation step)."""
+
+    def __init__(self, job) -> None:
+        self.job = job
+        self._checked = 0.0
+        self._stop = False
+
+    def __call__(self) -> bool:
+        now = time.monotonic()
+        if not self._stop and now - self._checked >= STOP_POLL_S:
+            self._checked = now
+            self._stop = job_stop_requested(job=self.job)
+        return self._stop
+
+
+def env_spec(
+    model: RacingModel, *, track_id: str | None = None, direction: str | None = None
+) -> EnvSpec:
+    """The simulator a job of ``model`` drives (its own track, or the one given)."""
+    return EnvSpec(
+        track=track_id or model.track_id,
+        track_dirs=(str(settings.RACECRAFT_TRACKS_DIR),),
+        direction=direction or model.direction,
+        action_space=model.action_space,
+        sensors=tuple(model.sensors),
+    )
+
+
+def rollout_backend() -> RolloutBackend:
+    """Where a training job's episodes run: ``RACECRAFT_REMOTE_ROLLOUT_SLOTS`` workers of the
+    ``simulation`` queue when it is set, else sandboxed processes on this machine."""
+    slots = int(settings.RACECRAFT_REMOTE_ROLLOUT_SLOTS)
+    if slots <= 0:
+        return LocalRollouts()
+    return RedisRollouts(
+        launch=functools.partial(dispatch.send, dispatch.SIMULATE_ROLLOUT),
+        redis_url=settings.REDIS_URL,
+        slots=slots,
+        prefix=settings.REDIS_PREFIX or "",
+    )
+
+
+def csv_text(rows: list[list]) -> str:
+    """A sim-trace CSV (DeepRacer's 19 columns) from rows a worker reported; a malformed row
+    is dropped, never trusted."""
+    lines = [",".join(SIMTRACE_COLUMNS)]
+    for row in rows:
+        try:
+            lines.append(TraceRow(*row).format())
+        except (TypeError, ValueError):
+            continue
+    return "\n".join(lines) + "\n"
+
+
+def fail_with(job, exc: Exception, *, what: str, clear: tuple[type[Exception], ...]) -> str:
+    """Fail ``job`` with ``exc``: errors of the ``clear`` types already speak to the user;
+    anything else is logged with its traceback and named. Returns ``"failed"``."""
+    if isinstance(exc, clear):
+        message = str(exc)
+    else:
+        log.error("%s job %s failed", what, job.pk, exc_info=exc)
+        message = f"{what} failed: {type(exc).__name__}: {exc}"
+    job_fail(job=job, error=message)
+    return "failed"

@@ -1,0 +1,198 @@
+"""Running a training job on a Celery worker (or inline, for the command line).
+
+The training loop (:mod:`training.rl.runner`) knows nothing of Django; this module gives it
+where rollouts run (:func:`~training.worker.common.rollout_backend`) and :class:`JobHooks`,
+which turn its reports into rows (metrics), stored objects (checkpoints, sim-traces,
+DeepRacer's metrics files) and live messages. State changes go through the services.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+
+from django.db import transaction
+
+from training import live, services
+from training.interchange.export import build_car_archive, export_onnx
+from training.models import EpisodeMetric, IterationMetric, RacingModel, TrainingJob
+from training.rl.checkpoints import CheckpointError, load_checkpoint
+from training.rl.hyperparams import parse_hyperparameters
+from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train
+from training.rollout.vecenv import RolloutError
+from training.sandbox import SandboxError
+from training.storage import ObjectNotFound, StoreError
+from training.store import get_store, keys_for
+from training.worker.common import (
+    Heartbeat,
+    StopFlag,
+    csv_text,
+    env_spec,
+    fail_with,
+    rollout_backend,
+)
+
+log = logging.getLogger(__name__)
+CLEAR_ERRORS = (RolloutError, SandboxError, CheckpointError, StoreError)
+"""Errors whose message already tells the user what went wrong."""
+
+
+class JobHooks(TrainingHooks):
+    """Database rows, stored objects and live messages for one training job."""
+
+    def __init__(self, job: TrainingJob) -> None:
+        self.job = job
+        self.model = job.model
+        self.keys = keys_for(self.model.pk)
+        self.store = get_store()
+        self.group = live.job_group("training", job.pk)
+        self.frames = live.FramePublisher(self.group)
+        self.should_stop = StopFlag(job)
+        self._episodes: list[dict] = []
+        self._episode_count = 0
+
+    # ---- polled during rollouts
+    def frames_wanted(self) -> bool:
+        return self.frames.watched()
+
+    def on_frame(self, frame: dict) -> None:
+        self.frames.publish(frame)
+
+    def on_episode(self, entry: dict) -> None:
+        self._episodes.append(entry)
+
+    # ---- once per iteration
+    def on_iteration(self, result: IterationResult, checkpoint: bytes, rows: list[list]) -> None:
+        n = result.iteration
+        store, keys = self.store, self.keys
+        store.put_bytes(keys.last, checkpoint)
+        if result.best:
+            store.put_bytes(keys.best, checkpoint)
+        store.put_bytes(
+            keys.checkpoints_index,
+            json.dumps(
+                {"best_checkpoint": {"name": "best.zip"}, "last_checkpoint": {"name": "last.zip"}}
+            ).encode(),  # fmt: skip
+            "application/json",
+        )
+        store.put_bytes(keys.simtrace(n - 1), csv_text(rows).encode(), "text/csv")
+        episodes, self._episodes = self._episodes, []
+        ev = result.evaluation
+        with transaction.atomic():
+            point = IterationMetric.objects.create(
+                job=self.job, iteration=n, episodes=result.episodes, steps=result.steps,
+                total_steps=result.total_steps, train_reward=result.train_reward,
+                train_progress=result.train_progress, eval_progress=result.eval_progress,
+                eval_reward=float(sum(ev.rewards) / max(1, len(ev.rewards))),
+                eval_laps_completed=sum(len(t) for t in ev.lap_times),
+                is_best=result.best, elapsed_s=result.elapsed_s, rollout_s=result.rollout_s,
+                update_s=result.update_s, eval_s=result.eval_s,
+            ).as_point()  # fmt: skip
+            new_rows = []
+            for entry in episodes:
+                if isinstance(entry, dict):
+                    new_rows.append(_episode_row(self.job, n, entry, self._episode_count))
+                    self._episode_count += 1
+            EpisodeMetric.objects.bulk_create(new_rows)
+            progress = {"iterations": n, "total_steps": result.total_steps,
+                        "episodes": self._episode_count}  # fmt: skip
+            if result.best:
+                progress.update(best_iteration=n, best_eval_progress=result.eval_progress)
+            services.job_heartbeat(job_model=TrainingJob, job_id=self.job.pk, **progress)
+            if not self.model.has_checkpoint:
+                RacingModel.objects.filter(pk=self.model.pk).update(has_checkpoint=True)
+                self.model.has_checkpoint = True
+        self._write_training_metrics()
+        live.send(self.group, {"type": "job.metrics", "point": point})
+
+    def _write_training_metrics(self) -> None:
+        entries = [
+            m.as_deepracer()
+            for m in EpisodeMetric.objects.filter(job=self.job).order_by("episode", "pk")
+        ]
+        body = {"metrics": entries, "version": 2, "best_model_metric": "progress"}
+        self.store.put_bytes(
+            self.keys.training_metrics, json.dumps(body).encode(), "application/json"
+        )
+
+    def close(self) -> None:
+        self.frames.close()
+
+
+def _episode_row(job: TrainingJob, iteration: int, e: dict, number: int) -> EpisodeMetric:
+    """A row from a worker's metrics entry (untrusted: every value checked)."""
+
+    def num(key: str, default: int = 0) -> int:
+        value = e.get(key, default)
+        return int(value) if isinstance(value, int | float) else default
+
+    return EpisodeMetric(
+        job=job,
+        iteration=iteration,
+        episode=number,
+        phase="training",
+        reward_score=num("reward_score"),
+        completion_percentage=min(100, max(0, num("completion_percentage"))),
+        episode_status=str(e.get("episode_status", ""))[:20],
+        elapsed_time_in_milliseconds=max(0, num("elapsed_time_in_milliseconds")),
+        start_time=max(0, num("start_time")),
+        metric_time=max(0, num("metric_time")),
+    )
+
+
+def _initial_checkpoint(model: RacingModel) -> bytes | None:
+    """The checkpoint a cloned or imported model starts from (None: a fresh network)."""
+    try:
+        return get_store().get_bytes(keys_for(model.pk).checkpoint("initial"))
+    except ObjectNotFound:
+        return None
+
+
+def run_training_job(job_id: int, worker: str = "") -> str:
+    """Claim and run training job ``job_id``; returns ``"completed"``, ``"failed"``,
+    ``"skipped"`` (another worker has it, or it was canceled) or ``"superseded"`` (it ended
+    meanwhile, e.g. failed by the orphan reaper; its result is not recorded twice)."""
+    job = services.job_claim(job_model=TrainingJob, job_id=job_id, worker=worker)
+    if job is None:
+        return "skipped"
+    model = job.model
+    hooks = JobHooks(job)
+    try:
+        config = TrainingConfig(
+            spec=env_spec(model),
+            algorithm=model.algorithm,
+            network=model.neural_network,
+            hyperparameters=parse_hyperparameters(model.hyperparameters, model.algorithm),
+            max_minutes=job.max_minutes,
+            reward_source=model.reward_function,
+            seed=model.seed,
+            initial_checkpoint=_initial_checkpoint(model),
+            rollouts=rollout_backend(),
+        )
+        services.job_begin(job=job)
+        with Heartbeat(TrainingJob, job.pk):
+            summary = train(config, hooks)
+    except Exception as exc:  # noqa: BLE001 - every failure ends the job with a message
+        return fail_with(job, exc, what="training", clear=CLEAR_ERRORS)
+    finally:
+        hooks.close()
+    model.refresh_from_db()
+    if model.has_checkpoint:
+        _export_car(model)
+    completed = services.job_complete(
+        job=job,
+        on_model_error="training stopped before the first iteration finished",
+        stopped_by=summary.stopped_by,
+    )
+    return "completed" if completed else "superseded"
+
+
+def _export_car(model: RacingModel) -> None:
+    """Write the car archive from the best checkpoint, so the download is ready at once."""
+    store, keys = get_store(), keys_for(model.pk)
+    try:
+        metadata = services.model_metadata(model)
+        policy = load_checkpoint(store.get_bytes(keys.best), metadata)
+        store.put_bytes(keys.car_export, build_car_archive(metadata, export_onnx(policy)))
+    except Exception:  # noqa: BLE001 - the download rebuilds it on demand
+        log.warning("could not export model %s for the car", model.pk, exc_info=True)
