@@ -34,8 +34,9 @@ from training.sandbox.oneshot import (
     SandboxedReward,
     evaluate_reward,
     isolation_support,
+    run_sandboxed,
 )
-from training.sandbox.process import SandboxMessage, SandboxProcess, run_sandboxed
+from training.sandbox.process import SandboxMessage, SandboxProcess
 from training.sandbox.requirements import (
     Requirement,
     describe_missing,

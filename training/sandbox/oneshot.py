@@ -1,9 +1,11 @@
-"""Evaluating a reward function on a list of params dicts (validation, tools), and the small
-targets the sandbox runs for it, for the per-call service and for the benchmark."""
+"""Evaluating a reward function on a list of params dicts (validation, tools), running a target
+to completion (:func:`run_sandboxed`), and the small targets the sandbox runs for these, for
+the per-call service and for the benchmark."""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -196,6 +198,44 @@ def evaluate_reward(
             sandbox.close()
     done = [o if o is not None else RewardOutcome(None, None) for o in outcomes]
     return EvaluationResult(done, layers, "".join(output), weak)
+
+
+def run_sandboxed(
+    *,
+    target: str,
+    reward_source: str,
+    args: Any = None,
+    limits: SandboxLimits | None = None,
+    prepare: str | None = None,
+    on_message: Callable[[Any], None] | None = None,
+    timeout: float | None = None,
+    python_guards: bool = True,
+) -> Any:
+    """Run ``target(ctx)`` in a sandbox child and return what it returns.
+
+    Messages the target sends go to ``on_message``. ``timeout`` bounds the whole run (seconds).
+    Raises RewardFunctionError or SandboxError (see :class:`SandboxProcess`).
+    """
+    sandbox = SandboxProcess(
+        target=target,
+        reward_source=reward_source,
+        args=args,
+        limits=limits,
+        prepare=prepare,
+        python_guards=python_guards,
+    )
+    deadline = None if timeout is None else time.monotonic() + timeout
+    sandbox.start()
+    try:
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            msg = sandbox.recv(left)
+            if msg.kind == "result":
+                return msg.value
+            if on_message is not None:
+                on_message(msg.value)
+    finally:
+        sandbox.close()
 
 
 class SandboxedReward:

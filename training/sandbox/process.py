@@ -21,7 +21,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -402,41 +401,3 @@ class SandboxProcess:
             hb.release()
             self._hb = None
             self._hb_map.close()
-
-
-def run_sandboxed(
-    *,
-    target: str,
-    reward_source: str,
-    args: Any = None,
-    limits: SandboxLimits | None = None,
-    prepare: str | None = None,
-    on_message: Callable[[Any], None] | None = None,
-    timeout: float | None = None,
-    python_guards: bool = True,
-) -> Any:
-    """Run ``target(ctx)`` in a sandbox child and return what it returns.
-
-    Messages the target sends go to ``on_message``. ``timeout`` bounds the whole run (seconds).
-    Raises RewardFunctionError or SandboxError (see :class:`SandboxProcess`).
-    """
-    sandbox = SandboxProcess(
-        target=target,
-        reward_source=reward_source,
-        args=args,
-        limits=limits,
-        prepare=prepare,
-        python_guards=python_guards,
-    )
-    deadline = None if timeout is None else time.monotonic() + timeout
-    sandbox.start()
-    try:
-        while True:
-            left = None if deadline is None else max(0.0, deadline - time.monotonic())
-            msg = sandbox.recv(left)
-            if msg.kind == "result":
-                return msg.value
-            if on_message is not None:
-                on_message(msg.value)
-    finally:
-        sandbox.close()
