@@ -8,6 +8,7 @@ See README.md for the table of variables.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import dj_database_url
@@ -54,6 +55,7 @@ MIDDLEWARE = [
     "django.contrib.auth.middleware.AuthenticationMiddleware",
     "django.contrib.messages.middleware.MessageMiddleware",
     "django.middleware.clickjacking.XFrameOptionsMiddleware",
+    "console.throttle.ThrottleMiddleware",
 ]
 
 ROOT_URLCONF = "console.urls"
@@ -69,6 +71,7 @@ TEMPLATES = [
                 "django.template.context_processors.request",
                 "django.contrib.auth.context_processors.auth",
                 "django.contrib.messages.context_processors.messages",
+                "console.context_processors.sandbox_warning",
             ],
         },
     },
@@ -190,6 +193,18 @@ RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = envint("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER"
 
 # Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks")))
+# Reward code runs only where every isolation protection is in force (training/sandbox/
+# requirements.py); 1 accepts weaker isolation and shows a warning on every page.
+RACECRAFT_ALLOW_WEAK_SANDBOX = envbool("RACECRAFT_ALLOW_WEAK_SANDBOX", False)
+# Reward validations run as Celery tasks; per user: at once, and started per minute.
+RACECRAFT_VALIDATIONS_PER_USER = envint("RACECRAFT_VALIDATIONS_PER_USER", 2, minimum=1)
+RACECRAFT_VALIDATIONS_PER_MINUTE = envint("RACECRAFT_VALIDATIONS_PER_MINUTE", 10, minimum=1)
+# Sign-up and log-in POSTs per address (log-in also per user name): django-ratelimit rates.
+RACECRAFT_LOGIN_RATE = envstr("RACECRAFT_LOGIN_RATE", "10/m")
+RACECRAFT_SIGNUP_RATE = envstr("RACECRAFT_SIGNUP_RATE", "5/h")
+for _name in ("RACECRAFT_LOGIN_RATE", "RACECRAFT_SIGNUP_RATE"):
+    if not re.fullmatch(r"\d+/\d*[smhd]", globals()[_name]):
+        raise ImproperlyConfigured(f"{_name}={globals()[_name]!r} is not a rate like 10/m")
 
 LOGGING = {
     "version": 1,
