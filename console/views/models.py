@@ -88,7 +88,9 @@ def model_create(request: HttpRequest) -> HttpResponse:
         ),
     )
     if model is None:
-        return _create_page(request, form, reward_errors=reward_errors)
+        # Refused by the server: reopen the page at the reward editor when that is the cause.
+        jump = "step-reward" if reward_errors else ""
+        return _create_page(request, form, reward_errors=reward_errors, jump=jump)
     messages.success(request, f"Model {model.name} created. Start training when you are ready.")
     return redirect("model-detail", model_id=model.pk)
 
