@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from django import forms
+from django.contrib.auth import password_validation
 from django.contrib.auth.forms import UserCreationForm
 from django.core.validators import RegexValidator
 
@@ -27,6 +28,16 @@ class SignUpForm(UserCreationForm):
 
     class Meta(UserCreationForm.Meta):
         fields = ("username",)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # Django's validators describe themselves as a long <ul>; one line says the same.
+        rules = [
+            str(text).rstrip(".") for text in password_validation.password_validators_help_texts()
+        ]
+        self.password_rules = "; ".join(r[:1].lower() + r[1:] for r in rules if r)
+        self.fields["password1"].help_text = ""
+        self.fields["password2"].help_text = "The same password again."
 
 
 def _track_choices() -> list[tuple[str, str]]:
@@ -69,6 +80,16 @@ class CloneForm(forms.Form):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.fields["track_id"].choices = _track_choices()
+
+
+class RewardForm(forms.Form):
+    """The reward function of a model that has not trained yet."""
+
+    reward_function = forms.CharField(
+        strip=False,
+        widget=forms.Textarea(attrs={"rows": 18, "spellcheck": "false"}),
+        error_messages={"required": "Write a reward function."},
+    )
 
 
 class EvaluateForm(forms.Form):

@@ -9,7 +9,7 @@ from django.shortcuts import redirect, render
 from django.views.decorators.http import require_http_methods, require_safe
 
 from console import tracks
-from console.forms import CloneForm, ImportForm
+from console.forms import CloneForm, ImportForm, RewardForm
 from console.model_form import HP_FIELDS, PPO_ONLY, SAC_ONLY, ModelCreateForm
 from console.views.owned import owned_model
 from console.views.service_calls import attempt_on_form
@@ -127,9 +127,42 @@ def model_clone(request: HttpRequest, model_id: int) -> HttpResponse:
         if clone is not None:
             messages.success(request, f"Model {clone.name} cloned from {source.name}.")
             return redirect("model-detail", model_id=clone.pk)
-    context = {"nav": "models", "form": form, "source": source, **_editor_context(reward_errors)}
+    context = {
+        "nav": "models",
+        "form": form,
+        "source": source,
+        "fresh_copy": not source.has_checkpoint,
+        **_editor_context(reward_errors),
+    }
     status = 400 if form.is_bound and form.errors else 200
     return render(request, "models/clone.html", context, status=status)
+
+
+@login_required
+@require_http_methods(["GET", "POST"])
+def model_reward_edit(request: HttpRequest, model_id: int) -> HttpResponse:
+    model = owned_model(request, model_id)
+    form = RewardForm(request.POST or None, initial={"reward_function": model.reward_function})
+    reward_errors: list[dict] = []
+    if request.method == "POST" and form.is_valid():
+        updated, reward_errors = attempt_on_form(
+            form,
+            lambda: services.model_update_reward(
+                model=model, user=request.user, reward_function=form.cleaned_data["reward_function"]
+            ),
+        )
+        if updated is not None:
+            messages.success(request, "Reward function saved.")
+            return redirect("model-detail", model_id=model.pk)
+    context = {
+        "nav": "models",
+        "form": form,
+        "model": model,
+        "can_edit": selectors.model_actions(model).can_edit_reward,
+        **_editor_context(reward_errors),
+    }
+    status = 400 if form.is_bound and form.errors else 200
+    return render(request, "models/reward_edit.html", context, status=status)
 
 
 @login_required

@@ -43,6 +43,7 @@ from training.services.models import (
     model_delete,
     model_import,
     model_metadata,
+    model_update_reward,
 )
 
 __all__ = [
@@ -72,6 +73,7 @@ __all__ = [
     "model_import",
     "model_metadata",
     "model_settle",
+    "model_update_reward",
     "track_catalog",
     "training_start",
 ]

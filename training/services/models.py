@@ -117,10 +117,11 @@ def model_clone(
     checkpoint: str = "best",
 ) -> RacingModel:
     """A new model that starts from ``model``'s best (or last) checkpoint. Algorithm, network,
-    sensors, action-space type and number of actions stay as they were."""
+    sensors, action-space type and number of actions stay as they were.
+
+    A model without a checkpoint (never trained, or failed before its first one) is copied
+    as a fresh model: the same configuration, trained from scratch, with no parent."""
     owned(model, owner)
-    if not model.has_checkpoint:
-        raise ServiceError("this model has no trained checkpoint to start from yet")
     if checkpoint not in ("best", "last"):
         raise ServiceError("clone from the best or the last checkpoint", field="checkpoint")
     new_actions = model.action_space if action_space is None else action_space
@@ -149,6 +150,8 @@ def model_clone(
         max_minutes=max_minutes or model.max_minutes,
         validate_reward=True,
     )
+    if not model.has_checkpoint:
+        return clone  # a fresh copy: nothing to start from
     store = get_store()
     src, dst = keys_for(model.pk), keys_for(clone.pk)
     try:
@@ -163,6 +166,23 @@ def model_clone(
     clone.has_checkpoint = True
     clone.save(update_fields=["parent", "has_checkpoint", "updated_at"])
     return clone
+
+
+def model_update_reward(*, model: RacingModel, user, reward_function: str) -> RacingModel:
+    """Change the reward function of a model that has never trained (as on DeepRacer, a
+    model's configuration is fixed once training starts: clone it to change it)."""
+    owned(model, user)
+    if model.has_checkpoint or model.training_jobs.exists() or model.is_busy:
+        raise ServiceError(
+            "the reward function is fixed once training has started; clone the model to change it"
+        )
+    check_reward(reward_function, model.track_id, model.direction)
+    model.reward_function = reward_function
+    model.save(update_fields=["reward_function", "updated_at"])
+    get_store().put_bytes(
+        keys_for(model.pk).reward_function, reward_function.encode(), "text/x-python"
+    )
+    return model
 
 
 def _delete_quietly(model: RacingModel) -> None:
