@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import pybullet as pb
 
 from racing.car import Pose
+from racing.quiet_pybullet import pb
 from racing.texture import GroundTexture, render_ground
 from racing.track import Track
 

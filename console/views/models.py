@@ -182,6 +182,8 @@ def model_import(request: HttpRequest) -> HttpResponse:
         )
         if model is not None:
             messages.success(request, f"Model {model.name} imported.")
+            if getattr(model, "import_note", ""):
+                messages.warning(request, model.import_note[:1].upper() + model.import_note[1:])
             return redirect("model-detail", model_id=model.pk)
     status = 400 if form.is_bound and form.errors else 200
     return render(request, "models/import.html", {"nav": "models", "form": form}, status=status)

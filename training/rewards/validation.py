@@ -259,7 +259,10 @@ def main(argv: list[str] | None = None) -> int:
         description="Validate a DeepRacer reward function on a track; print JSON.",
     )
     parser.add_argument("path", help="the reward function's .py file")
-    parser.add_argument("--track", required=True, help="track id, e.g. racecraft_oval")
+    ids = TrackCatalog().ids()
+    parser.add_argument(
+        "--track", required=True, help=f"track id, one of: {', '.join(ids)}", metavar="TRACK"
+    )
     args = parser.parse_args(argv)
     try:
         with open(args.path, encoding="utf-8") as f:
@@ -269,7 +272,9 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({"ok": False, "usage_error": str(exc)}), file=sys.stderr)
         return 2
     except UnknownTrackError as exc:
-        print(json.dumps({"ok": False, "usage_error": str(exc)}), file=sys.stderr)
+        known = ", ".join(TrackCatalog().ids())
+        print(json.dumps({"ok": False, "usage_error": f"{exc}; known tracks: {known}"}),
+              file=sys.stderr)  # fmt: skip
         return 2
     print(json.dumps(result.to_dict(), indent=2))
     return 0 if result.ok else 1
