@@ -82,6 +82,36 @@ class CloneForm(forms.Form):
         self.fields["track_id"].choices = _track_choices()
 
 
+class TrackUploadForm(forms.Form):
+    """A DeepRacer ``.npy`` track file; after a preview the file travels in ``data`` (base64)
+    so that Import does not ask for it again."""
+
+    file = forms.FileField(label="Track file (.npy)", required=False,
+                           widget=forms.ClearableFileInput(attrs={"accept": ".npy"}))  # fmt: skip
+    track_id = forms.CharField(
+        label="Track id", max_length=64, required=False,
+        help_text="Letters, digits, '_' or '-'; default: the file's name.",
+    )  # fmt: skip
+    name = forms.CharField(label="Display name", max_length=80, required=False)
+    data = forms.CharField(widget=forms.HiddenInput, required=False)
+    filename = forms.CharField(widget=forms.HiddenInput, required=False)
+
+    def upload(self) -> tuple[bytes, str]:
+        """The file's bytes and name: the new upload, else the one carried from the preview."""
+        import base64
+        import binascii
+
+        upload = self.cleaned_data.get("file")
+        if upload:
+            return upload.read(2_000_001), upload.name
+        try:
+            return base64.b64decode(self.cleaned_data.get("data") or "", validate=True), (
+                self.cleaned_data.get("filename") or ""
+            )
+        except (binascii.Error, ValueError):
+            return b"", ""
+
+
 class RewardForm(forms.Form):
     """The reward function of a model that has not trained yet."""
 

@@ -39,6 +39,7 @@ urlpatterns = [
     path("", pages.home, name="home"),
     path("tracks/", pages.track_gallery, name="track-gallery"),
     path("tracks/<track:track_id>.png", pages.track_preview, name="track-preview"),
+    path("tracks/import/", pages.track_upload, name="track-upload"),
     # accounts
     path("accounts/signup/", accounts.signup, name="signup"),
     path(
