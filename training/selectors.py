@@ -90,7 +90,9 @@ def model_actions(model: RacingModel, job: TrainingJob | None = None) -> ModelAc
     return ModelActions(
         can_train=not busy and not trained,
         can_evaluate=model.has_checkpoint and not model.is_busy,
-        can_clone=not busy,  # with a checkpoint it continues from it, else a fresh copy
+        # With a checkpoint a clone continues from it (even while training goes on); without
+        # one it is a fresh copy of the configuration, once the model is not busy.
+        can_clone=model.has_checkpoint or not busy,
         can_edit_reward=job is None and not model.has_checkpoint and not busy,
     )
 

@@ -70,7 +70,7 @@
   if (validate) {
     validate.addEventListener("click", async () => {
       const form = root.closest("form");
-      const track = form.querySelector("[name=track_id]:checked, select[name=track_id]");
+      const track = form.querySelector("[name=track_id]:checked, select[name=track_id], input[type=hidden][name=track_id]");
       const direction = form.querySelector("[name=direction]");
       validate.disabled = true;
       validate.textContent = "Validating…";

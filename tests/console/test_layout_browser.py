@@ -99,6 +99,7 @@ class Site:
     url: str
     trained: int  # a trained and evaluated model
     live: int  # a model in the middle of training
+    fresh: int  # a model never trained
     event: int
     submission: int
 
@@ -174,13 +175,14 @@ def _populate() -> dict:
                                          started_at=now - timedelta(seconds=50), heartbeat_at=now)  # fmt: skip
     metrics(running, 2)
 
+    fresh = model("oval-fresh")
     event = make_event(racer, name="Oval sprint", min_laps=1)
     with mock.patch("training.dispatch.send", return_value="t"):
         submission = submission_create(event=event, user=racer, model=trained)
     finish_evaluation(submission.evaluation, [lap(34.4), lap(34.6), lap(34.5)])
     type(submission.evaluation).objects.filter(pk=submission.evaluation_id).update(has_video=True)
     store.put_bytes(keys_for(trained.pk).video(submission.evaluation_id), video, "video/mp4")
-    return {"trained": trained.pk, "live": live.pk, "event": event.pk,
+    return {"trained": trained.pk, "live": live.pk, "fresh": fresh.pk, "event": event.pk,
             "submission": submission.pk}  # fmt: skip
 
 
@@ -283,6 +285,8 @@ def groups(site: Site) -> list[tuple[str, str, list[str], str]]:
          ".lb-table", ".lb-facts > div"], ""),
         ("submission", f"{u}/league/submissions/{site.submission}/", [".lb-head > *", ".lb-panel",
          "video", ".lb-table", ".lb-facts > div"], "video"),
+        ("reward-edit", f"{u}/models/{site.fresh}/reward/", [".page-head", ".panel",
+         ".editor-toolbar > *"], ".reward-editor"),
         ("tracks", f"{u}/tracks/", [".page-head > *", ".track-card", ".track-import",
          ".import-grid .field"], ""),
     ]  # fmt: skip
@@ -310,3 +314,34 @@ def test_every_page_group_at_three_widths(site: Site, browser_page) -> None:
     if "Lap complete" not in page.locator("#laps").inner_text():
         failures.append("[submission] lap status is not 'Lap complete'")
     assert not failures, "\n\n".join(failures)
+
+
+@pytest.mark.django_db(transaction=True)
+def test_validate_shows_progress_and_a_track_file_is_previewed_then_imported(
+    site: Site, browser_page, tmp_path
+) -> None:
+    import io
+
+    from playwright.sync_api import expect
+
+    from racing.tracks import TrackCatalog
+
+    page = browser_page
+    page.goto(f"{site.url}/models/{site.fresh}/reward/")
+    page.click("#validate-reward")
+    expect(page.locator(".validate-progress")).to_contain_text("Running your function")
+    expect(page.locator("#reward-result .ok-message")).to_contain_text("Valid", timeout=60_000)
+
+    buffer = io.BytesIO()
+    np.save(buffer, TrackCatalog().load("racecraft_oval").to_array())
+    path = tmp_path / "my oval.npy"
+    path.write_bytes(buffer.getvalue())
+    page.goto(f"{site.url}/tracks/")
+    page.set_input_files("#id_file", str(path))
+    page.fill("#id_name", "My oval")
+    page.click("#track-preview-button")
+    expect(page.locator("#track-upload-preview")).to_be_visible()
+    page.screenshot(path=str(ARTIFACTS / "tracks-preview-1280.png"), full_page=True)
+    page.click("#track-import-button")
+    expect(page.locator("#track-my_oval")).to_contain_text("My oval")
+    assert not page.console_errors, page.console_errors
