@@ -258,6 +258,7 @@ def check_layout(page, url: str, group: str, selectors: list[str], ready: str = 
         if ready:
             page.wait_for_selector(ready)
         page.wait_for_timeout(300)  # fonts, the chart's first draw
+        page.evaluate("window.scrollTo(0, 0)")  # the sticky bar stays on top of the shot
         page.screenshot(path=str(ARTIFACTS / f"{group}-{width}.png"), full_page=True)
         problems += [f"{width} px: {p}" for p in page.evaluate(OVERLAPS_JS, selectors)]
         sideways = page.evaluate("document.documentElement.scrollWidth - window.innerWidth")
@@ -341,6 +342,7 @@ def test_validate_shows_progress_and_a_track_file_is_previewed_then_imported(
     page.fill("#id_name", "My oval")
     page.click("#track-preview-button")
     expect(page.locator("#track-upload-preview")).to_be_visible()
+    page.evaluate("window.scrollTo(0, 0)")
     page.screenshot(path=str(ARTIFACTS / "tracks-preview-1280.png"), full_page=True)
     page.click("#track-import-button")
     expect(page.locator("#track-my_oval")).to_contain_text("My oval")
