@@ -333,6 +333,24 @@ def test_validate_shows_progress_and_a_track_file_is_previewed_then_imported(
     expect(page.locator(".validate-progress")).to_contain_text("Running your function")
     expect(page.locator("#reward-result .ok-message")).to_contain_text("Valid", timeout=60_000)
 
+    # Create refused by the server: the page comes back at the reward editor, not at the top.
+    page.goto(f"{site.url}/models/new/")
+    page.fill("#id_name", "refused-one")
+    page.click("#reward-editor .cm-content")
+    page.keyboard.press("Control+a")
+    page.keyboard.press("Delete")
+    page.keyboard.insert_text("def reward_function(params):\n    return params['nope']\n")
+    page.click("#create-submit")
+    expect(page.locator("#reward-result .error-list li").first).to_contain_text("Line 2")
+    expect(page.locator("#reward-result .error-list li").first).to_contain_text(
+        "in all 6 test situations"
+    )
+    assert page.evaluate("window.scrollY") > 500
+    top = page.locator("#step-reward").bounding_box()["y"]
+    assert -50 < top < 400, top  # the editor's section is on screen
+    page.screenshot(path=str(ARTIFACTS / "create-refused-1280.png"))
+    page.console_errors.clear()  # the refused form answers 400, as it should
+
     buffer = io.BytesIO()
     np.save(buffer, TrackCatalog().load("racecraft_oval").to_array())
     path = tmp_path / "my oval.npy"
