@@ -159,3 +159,14 @@ def test_forged_remote_replies_are_malformed_data(message: object, redis_url: st
     finally:
         client.delete(slot.reply_key)
         client.close()
+
+
+def test_a_trace_row_may_carry_a_continuous_action_pair_and_nothing_deeper() -> None:
+    from training.rollout.vecenv import _check_trace
+    from training.sandbox.checked import Malformed
+
+    _check_trace([1, 2, 0.5, 1.0, 0.1, 3, [12.5, 1.7], 0.3])  # continuous: (steering, speed)
+    _check_trace([1, 2, 0.5, 1.0, 0.1, 3, 4, 0.3])  # discrete: the action's index
+    for forged in ([[1, [2]]], [[1, 2, 3]], [[1], [2]], "row", [float("nan")]):
+        with pytest.raises(Malformed):
+            _check_trace(forged)
