@@ -106,7 +106,7 @@ FORGED_STEPS = {
     "info_extra_key": _step(infos=[GOOD_INFO, dict(GOOD_INFO, evil=1)]),
     "info_progress_nan": _step(infos=[GOOD_INFO, dict(GOOD_INFO, progress=float("nan"))]),
     "info_status_number": _step(infos=[GOOD_INFO, dict(GOOD_INFO, status=3)]),
-    "info_trace_nested": _step(infos=[GOOD_INFO, dict(GOOD_INFO, trace=[[1, 2]])]),
+    "info_trace_nested": _step(infos=[GOOD_INFO, dict(GOOD_INFO, trace=[[1, [2]]])]),
     "terminal_obs_shape": _step(
         infos=[GOOD_INFO, dict(GOOD_INFO, terminal_observation=np.zeros((2, 2), np.uint8))]
     ),
