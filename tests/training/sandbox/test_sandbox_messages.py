@@ -11,7 +11,7 @@ import pytest
 import redis
 
 from tests.conftest import REDIS_PREFIX
-from tests.training.sandbox_support import host_intact, real_params
+from tests.training.sandbox.sandbox_support import host_intact, real_params
 from training.rollout.remote import RemoteSlot, _push
 from training.rollout.vecenv import RolloutError, _WorkerVecEnv
 from training.sandbox import SandboxLimits, evaluate_reward

@@ -16,7 +16,7 @@ import pytest
 from training.management import progress
 from training.management.progress import ProgressBar
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _manage(*args: str) -> subprocess.CompletedProcess[str]:
