@@ -67,3 +67,21 @@ def test_templates_have_no_inline_event_handlers() -> None:
         )
     ]
     assert offenders == []
+
+
+@pytest.mark.parametrize("host", ["0.0.0.0", "192.0.2.7", "::", "racecraft.example.com"])
+def test_up_refuses_an_open_address_with_debug_on(host) -> None:
+    from django.core.management.base import CommandError
+
+    from console.management.commands.up import refuse_debug_on_open_address
+
+    with pytest.raises(CommandError, match="with DEBUG on"):
+        refuse_debug_on_open_address(host, debug=True)
+    refuse_debug_on_open_address(host, debug=False)  # production settings: allowed
+
+
+@pytest.mark.parametrize("host", ["127.0.0.1", "::1", "[::1]", "localhost", "127.0.0.2"])
+def test_up_listens_on_loopback_with_debug_on(host) -> None:
+    from console.management.commands.up import refuse_debug_on_open_address
+
+    assert refuse_debug_on_open_address(host, debug=True) is None
