@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import ast
 import json
+import os
 import re
 import sys
 from dataclasses import dataclass, field
@@ -73,6 +74,8 @@ def situation_params(track: Track, situations: tuple[str, ...] = SITUATIONS) -> 
 
 
 def _load_track(track: Track | str) -> Track:
+    """A Track as given, or a built-in track by id (the console passes Track objects loaded
+    from its own catalogue; the command line passes its own catalogue's track)."""
     return TrackCatalog().load(track) if isinstance(track, str) else track
 
 
@@ -230,20 +233,24 @@ def main(argv: list[str] | None = None) -> int:
         description="Validate a DeepRacer reward function on a track; print JSON.",
     )
     parser.add_argument("path", help="the reward function's .py file")
-    ids = TrackCatalog().ids()
     parser.add_argument(
-        "--track", required=True, help=f"track id, one of: {', '.join(ids)}", metavar="TRACK"
+        "--tracks-dir",
+        default=os.environ.get("RACECRAFT_TRACKS_DIR"),
+        help="folder of imported track files (default: $RACECRAFT_TRACKS_DIR, as the console)",
     )
+    parser.add_argument("--track", required=True, metavar="TRACK",
+                        help="track id: a built-in track or one in the tracks folder")  # fmt: skip
     args = parser.parse_args(argv)
+    catalog = TrackCatalog([args.tracks_dir] if args.tracks_dir else [])
     try:
         with open(args.path, encoding="utf-8") as f:
             source = f.read()
-        result = validate_reward_function(source, args.track)
+        result = validate_reward_function(source, catalog.load(args.track))
     except (OSError, UnicodeDecodeError) as exc:
         print(json.dumps({"ok": False, "usage_error": str(exc)}), file=sys.stderr)
         return 2
     except UnknownTrackError as exc:
-        known = ", ".join(TrackCatalog().ids())
+        known = ", ".join(catalog.ids())
         print(json.dumps({"ok": False, "usage_error": f"{exc}; known tracks: {known}"}),
               file=sys.stderr)  # fmt: skip
         return 2
