@@ -103,7 +103,7 @@ class User(threading.Thread):
                 if attempt:
                     break
         elapsed_ms = (time.perf_counter() - started) * 1000
-        ok = status in (200, 302, 400) and not (status == 0 and error)
+        ok = status in (200, 202, 302, 400, 429) and not (status == 0 and error)
         self.record(kind, elapsed_ms, ok, f"{status} {error}".strip())
 
     def run(self) -> None:

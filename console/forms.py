@@ -6,14 +6,16 @@ from __future__ import annotations
 from typing import Any
 
 from django import forms
+from django.contrib.auth import password_validation
 from django.contrib.auth.forms import UserCreationForm
 from django.core.validators import RegexValidator
 
 from console import tracks
+from training.interchange.archive import ImportLimits
 from training.models import MODEL_NAME_RE, Direction
 
-MAX_IMPORT_BYTES = 1024**3
-"""Largest virtual-model archive accepted (DeepRacer on AWS: 1 GB)."""
+MAX_IMPORT_BYTES = ImportLimits().max_upload_bytes
+"""Largest model archive accepted: the reader's own limit, so the form and it agree."""
 
 _name_field = {
     "max_length": 64,
@@ -28,6 +30,16 @@ class SignUpForm(UserCreationForm):
     class Meta(UserCreationForm.Meta):
         fields = ("username",)
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # Django's validators describe themselves as a long <ul>; one line says the same.
+        rules = [
+            str(text).rstrip(".") for text in password_validation.password_validators_help_texts()
+        ]
+        self.password_rules = "; ".join(r[:1].lower() + r[1:] for r in rules if r)
+        self.fields["password1"].help_text = ""
+        self.fields["password2"].help_text = "The same password again."
+
 
 def _track_choices() -> list[tuple[str, str]]:
     return [(r.info.id, r.info.name) for r in tracks.track_rows()]
@@ -40,13 +52,15 @@ class ImportForm(forms.Form):
         label="Virtual model (.tar.gz)",
         help_text="A virtual model downloaded from Racecraft: model_metadata.json, "
         "hyperparameters.json, reward_function.py and a checkpoint.",
-        error_messages={"required": "Choose a virtual-model archive to upload."},
+        error_messages={"required": "Choose a model archive to upload."},
     )
 
     def clean_archive(self) -> Any:
         upload = self.cleaned_data["archive"]
         if upload.size > MAX_IMPORT_BYTES:
-            raise forms.ValidationError("The archive is larger than 1 GB.")
+            raise forms.ValidationError(
+                f"The archive is larger than {MAX_IMPORT_BYTES // 2**20} MB, the most accepted."
+            )
         if upload.size == 0:
             raise forms.ValidationError("The archive is empty.")
         return upload
@@ -69,6 +83,46 @@ class CloneForm(forms.Form):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.fields["track_id"].choices = _track_choices()
+
+
+class TrackUploadForm(forms.Form):
+    """A DeepRacer ``.npy`` track file; after a preview the file travels in ``data`` (base64)
+    so that Import does not ask for it again."""
+
+    file = forms.FileField(label="Track file (.npy)", required=False,
+                           widget=forms.ClearableFileInput(attrs={"accept": ".npy"}))  # fmt: skip
+    track_id = forms.CharField(
+        label="Track id", max_length=64, required=False,
+        help_text="Letters, digits, '_' or '-'; default: the file's name.",
+    )  # fmt: skip
+    name = forms.CharField(label="Display name", max_length=80, required=False)
+    data = forms.CharField(widget=forms.HiddenInput, required=False)
+    filename = forms.CharField(widget=forms.HiddenInput, required=False)
+
+    def upload(self) -> tuple[bytes, str]:
+        """The file's bytes and name: the new upload, else the one carried from the preview."""
+        import base64
+        import binascii
+
+        upload = self.cleaned_data.get("file")
+        if upload:
+            return upload.read(2_000_001), upload.name
+        try:
+            return base64.b64decode(self.cleaned_data.get("data") or "", validate=True), (
+                self.cleaned_data.get("filename") or ""
+            )
+        except (binascii.Error, ValueError):
+            return b"", ""
+
+
+class RewardForm(forms.Form):
+    """The reward function of a model that has not trained yet."""
+
+    reward_function = forms.CharField(
+        strip=False,
+        widget=forms.Textarea(attrs={"rows": 18, "spellcheck": "false"}),
+        error_messages={"required": "Write a reward function."},
+    )
 
 
 class EvaluateForm(forms.Form):

@@ -8,14 +8,16 @@ See README.md for the table of variables.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import dj_database_url
 from celery.schedules import crontab
 from django.core.exceptions import ImproperlyConfigured
 
-from console.env import bucket_name, envbool, envint, envlist, envstr
+from console.env import envbool, envint, envlist, envstr
 from console.redisconf import celery_settings, channel_layers
+from training.storage import DEFAULT_BUCKET, StoreError, check_bucket_name
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 # Runtime state (SQLite file, embedded Redis socket, local object store); git-ignored.
@@ -43,6 +45,7 @@ INSTALLED_APPS = [
     "training",
     "leaderboard",
     "console",
+    "csp",
 ]
 
 MIDDLEWARE = [
@@ -53,9 +56,42 @@ MIDDLEWARE = [
     "django.contrib.auth.middleware.AuthenticationMiddleware",
     "django.contrib.messages.middleware.MessageMiddleware",
     "django.middleware.clickjacking.XFrameOptionsMiddleware",
+    "console.throttle.ThrottleMiddleware",
+    "csp.middleware.CSPMiddleware",
     # An unreachable object store or database: a 503 "try again", never a 500.
     "console.middleware.UnavailableMiddleware",
 ]
+
+# ---- HTTPS and browser protections. Production (DEBUG=0) runs behind a TLS-terminating proxy
+# that sets X-Forwarded-Proto; `manage.py check --deploy` is clean with these defaults.
+SECURE_PROXY_SSL_HEADER = ("HTTP_X_FORWARDED_PROTO", "https") if not DEBUG else None
+SECURE_SSL_REDIRECT = envbool("SECURE_SSL_REDIRECT", not DEBUG)
+SECURE_HSTS_SECONDS = envint("SECURE_HSTS_SECONDS", 0 if DEBUG else 31_536_000, minimum=0)
+SECURE_HSTS_INCLUDE_SUBDOMAINS = envbool("SECURE_HSTS_INCLUDE_SUBDOMAINS", not DEBUG)
+SECURE_HSTS_PRELOAD = envbool("SECURE_HSTS_PRELOAD", False)
+# Submitting a domain to the browsers' HSTS preload list is the operator's decision (it is
+# hard to undo), so `check --deploy` does not nag about it; SECURE_HSTS_PRELOAD=1 opts in.
+SILENCED_SYSTEM_CHECKS = ["security.W021"]
+SESSION_COOKIE_SECURE = not DEBUG
+CSRF_COOKIE_SECURE = not DEBUG
+X_FRAME_OPTIONS = "DENY"
+# Content Security Policy (django-csp), in force in development too so tests see violations:
+# scripts only from our own files (no inline code), websockets to ourselves.
+CONTENT_SECURITY_POLICY = {
+    "DIRECTIVES": {
+        "default-src": ["'self'"],
+        "script-src": ["'self'"],
+        "style-src": ["'self'", "'unsafe-inline'"],
+        "img-src": ["'self'", "data:", "blob:"],
+        "media-src": ["'self'", "blob:"],
+        "connect-src": ["'self'", "ws:", "wss:"],
+        "font-src": ["'self'"],
+        "object-src": ["'none'"],
+        "base-uri": ["'self'"],
+        "form-action": ["'self'"],
+        "frame-ancestors": ["'none'"],
+    }
+}
 
 ROOT_URLCONF = "console.urls"
 ASGI_APPLICATION = "console.asgi.application"
@@ -70,6 +106,7 @@ TEMPLATES = [
                 "django.template.context_processors.request",
                 "django.contrib.auth.context_processors.auth",
                 "django.contrib.messages.context_processors.messages",
+                "console.context_processors.sandbox_warning",
             ],
         },
     },
@@ -193,7 +230,10 @@ MINIO_ENDPOINT = envstr("MINIO_ENDPOINT")
 MINIO_ACCESS_KEY = envstr("MINIO_ACCESS_KEY")
 MINIO_SECRET_KEY = envstr("MINIO_SECRET_KEY")
 MINIO_SECURE = envbool("MINIO_SECURE", False)
-MINIO_BUCKET = bucket_name(envstr("MINIO_BUCKET", "deepracer-models"))
+try:
+    MINIO_BUCKET = check_bucket_name(envstr("MINIO_BUCKET", DEFAULT_BUCKET))
+except StoreError as exc:
+    raise ImproperlyConfigured(f"MINIO_BUCKET: {exc}") from None
 if MINIO_ENDPOINT and not (MINIO_ACCESS_KEY and MINIO_SECRET_KEY):
     raise ImproperlyConfigured("MINIO_ENDPOINT is set: MINIO_ACCESS_KEY and MINIO_SECRET_KEY too")
 STORE_DIR = Path(envstr("STORE_DIR", str(VAR_DIR / "store")))
@@ -203,7 +243,6 @@ STORE_DIR = Path(envstr("STORE_DIR", str(VAR_DIR / "store")))
 RACECRAFT_STORE_RETRY_S = envint("RACECRAFT_STORE_RETRY_S", 3, minimum=0)
 RACECRAFT_STORE_WORKER_RETRY_S = envint("RACECRAFT_STORE_WORKER_RETRY_S", 180, minimum=0)
 
-# Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 # Training: rollouts on this machine (0) or on that many `-Q simulation` workers elsewhere.
 RACECRAFT_REMOTE_ROLLOUT_SLOTS = envint("RACECRAFT_REMOTE_ROLLOUT_SLOTS", 0, minimum=0)
 RACECRAFT_MAX_MODELS_PER_USER = envint("RACECRAFT_MAX_MODELS_PER_USER", 50, minimum=1)
@@ -211,10 +250,21 @@ RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = envint("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER"
 # A job whose worker died is queued again (training resumes from its last checkpoint) until
 # it has been claimed this many times; then it fails.
 RACECRAFT_JOB_MAX_ATTEMPTS = envint("RACECRAFT_JOB_MAX_ATTEMPTS", 3, minimum=1)
-# Reward validations (each a sandboxed interpreter) running at once in one web process; more
-# wait up to 30 s, then get 503 "busy, try again".
-RACECRAFT_VALIDATE_CONCURRENCY = envint("RACECRAFT_VALIDATE_CONCURRENCY", 2, minimum=1)
+
+# Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks")))
+# Reward code runs only where every isolation protection is in force (training/sandbox/
+# requirements.py); 1 accepts weaker isolation and shows a warning on every page.
+RACECRAFT_ALLOW_WEAK_SANDBOX = envbool("RACECRAFT_ALLOW_WEAK_SANDBOX", False)
+# Reward validations run as Celery tasks; per user: at once, and started per minute.
+RACECRAFT_VALIDATIONS_PER_USER = envint("RACECRAFT_VALIDATIONS_PER_USER", 2, minimum=1)
+RACECRAFT_VALIDATIONS_PER_MINUTE = envint("RACECRAFT_VALIDATIONS_PER_MINUTE", 10, minimum=1)
+# Sign-up and log-in POSTs per address (log-in also per user name): django-ratelimit rates.
+RACECRAFT_LOGIN_RATE = envstr("RACECRAFT_LOGIN_RATE", "10/m")
+RACECRAFT_SIGNUP_RATE = envstr("RACECRAFT_SIGNUP_RATE", "5/h")
+for _name in ("RACECRAFT_LOGIN_RATE", "RACECRAFT_SIGNUP_RATE"):
+    if not re.fullmatch(r"\d+/\d*[smhd]", globals()[_name]):
+        raise ImproperlyConfigured(f"{_name}={globals()[_name]!r} is not a rate like 10/m")
 
 LOGGING = {
     "version": 1,

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from leaderboard.models import Submission
-from leaderboard.ranking import format_ms
 from leaderboard.selectors import leaderboard_rows
 from training import live
+from training.formatting import format_lap_ms
 
 MESSAGE_TYPE = "league.result"
 
@@ -25,11 +25,25 @@ def result_message(submission: Submission) -> dict:
             "racer_id": submission.racer_id,
             "status": submission.status,
             "status_label": submission.get_status_display(),
-            "time": format_ms(submission.score_ms),
+            "time": format_lap_ms(submission.score_ms),
             "reason": submission.reason,
         },
         "rows": [row.as_dict() for row in leaderboard_rows(submission.event)],
     }
+
+
+def visible_result(message: dict, user_id: int | None) -> dict:
+    """What one viewer receives of a result message: the leaderboard (which everyone sees) and
+    the submission as the league pages show it to them. Their own submission comes whole;
+    someone else's only once ranked, and never with its reason: another racer's failed or
+    unranked results are not theirs to read."""
+    submission = message["submission"]
+    if submission["racer_id"] != user_id:
+        if submission["status"] != Submission.Status.RANKED:
+            submission = None
+        else:
+            submission = {k: v for k, v in submission.items() if k != "reason"}
+    return {"type": "result", "submission": submission, "rows": message["rows"]}
 
 
 def broadcast_result(submission_id: int) -> None:

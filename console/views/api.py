@@ -3,36 +3,20 @@
 from __future__ import annotations
 
 import json
-import threading
 from functools import cache
 from pathlib import Path
 
-from django.conf import settings
 from django.contrib.auth.decorators import login_required
 from django.http import HttpRequest, HttpResponse, JsonResponse
-from django.views.decorators.http import require_POST, require_safe
+from django.urls import reverse
+from django.views.decorators.http import require_http_methods, require_safe
 
 from training import services
-from training.sandbox import MAX_SOURCE_CHARS
+from training.sandbox import MAX_SOURCE_CHARS, check_source
+from training.services import rewards
 
 MAX_BODY_BYTES = MAX_SOURCE_CHARS * 4 + 4096
 OPENAPI_PATH = Path(__file__).resolve().parent.parent / "openapi.json"
-VALIDATE_WAIT_S = 30.0
-"""How long a validation waits for a free slot before answering 503 "busy, try again"."""
-_validations: threading.BoundedSemaphore | None = None
-_validations_lock = threading.Lock()
-
-
-def _validation_slots() -> threading.BoundedSemaphore:
-    """At most ``RACECRAFT_VALIDATE_CONCURRENCY`` reward validations at once in this web
-    process: each starts a sandboxed interpreter (about a CPU-second), and a burst of them must
-    not starve the pages everyone else is loading."""
-    global _validations
-    with _validations_lock:
-        if _validations is None:
-            slots = int(getattr(settings, "RACECRAFT_VALIDATE_CONCURRENCY", 2))
-            _validations = threading.BoundedSemaphore(max(1, slots))
-        return _validations
 
 
 @cache
@@ -53,13 +37,25 @@ def _error(message: str, status: int = 400, field: str | None = None) -> JsonRes
 
 
 @login_required
-@require_POST
+@require_http_methods(["GET", "POST"])
 def reward_validate(request: HttpRequest) -> JsonResponse:
-    """POST ``{source, track, direction}`` (JSON or form data) → ``{ok, errors, rewards}``.
+    """POST ``{source, track, direction}`` (JSON or form data) starts a validation; GET
+    ``?id=<id>`` polls it. The web process runs none of the user's code: static errors
+    (found by parsing alone) come back at once with ``status: done``; otherwise the answer is
+    202 ``{status: queued, id, poll}`` and polling gives ``{status: queued|running}`` until
+    ``{status: done, ok, errors, rewards}``.
 
     Errors are DeepRacer's: ``{type, message, line, column, lineNumber}``; a request we cannot
-    read answers 400 with one REQUEST_ERROR.
+    read, or one over the per-user limits, answers 400 (429 for limits) with one REQUEST_ERROR.
     """
+    if request.method == "GET":
+        try:
+            status = rewards.reward_validation_status(
+                user_id=request.user.pk, task_id=request.GET.get("id", "")
+            )
+        except rewards.ValidationNotFound:
+            return _error("No such validation.", status=404)
+        return JsonResponse(dict(status))
     if len(request.body) > MAX_BODY_BYTES:
         return _error("The reward function is too long.", status=413, field="source")
     if request.content_type == "application/json":
@@ -79,18 +75,18 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
         return _error("Choose a track to validate on.", field="track")
     if not isinstance(direction, str):
         return _error("'direction' must be native, ccw or cw.", field="direction")
-    slots = _validation_slots()
-    if not slots.acquire(timeout=VALIDATE_WAIT_S):
-        response = _error("The validator is busy; try again in a moment.", status=503)
-        response["Retry-After"] = "10"
-        return response
+    static = check_source(source) if source.strip() else []
     try:
-        result = services.check_reward(source, track, direction)
-    except services.RewardRejected as exc:
-        return JsonResponse({"ok": False, "errors": exc.errors})
+        if static:  # parsing only: answered here, nothing queued
+            services.check_track(track, direction)
+            errors = [e.to_dict() for e in static]
+            return JsonResponse({"status": "done", "ok": False, "errors": errors, "rewards": {}})
+        task_id = rewards.reward_validation_start(
+            user_id=request.user.pk, source=source, track_id=track, direction=direction
+        )
     except services.ServiceError as exc:
         field = {"track_id": "track", "reward_function": "source"}.get(exc.field or "", exc.field)
-        return _error(exc.sentence, field=field)
-    finally:
-        slots.release()
-    return JsonResponse({"ok": True, "errors": [], "rewards": result["rewards"]})
+        limited = isinstance(exc, rewards.ValidationLimited)
+        return _error(exc.sentence, status=429 if limited else 400, field=field)
+    poll = f"{reverse('reward-validate')}?id={task_id}"
+    return JsonResponse({"status": "queued", "id": task_id, "poll": poll}, status=202)

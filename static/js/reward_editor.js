@@ -50,7 +50,11 @@
     result.append(ok);
   }
 
-  if (initialErrors.length) showErrors(initialErrors);
+  if (initialErrors.length) {
+    // The server refused the reward function: take the user to it, at the first marked line.
+    showErrors(initialErrors);
+    root.scrollIntoView({ block: "start" });
+  }
 
   const useExample = root.querySelector("#use-example");
   if (useExample) {
@@ -66,11 +70,24 @@
   if (validate) {
     validate.addEventListener("click", async () => {
       const form = root.closest("form");
-      const track = form.querySelector("[name=track_id]:checked, select[name=track_id]");
+      const track = form.querySelector("[name=track_id]:checked, select[name=track_id], input[type=hidden][name=track_id]");
       const direction = form.querySelector("[name=direction]");
       validate.disabled = true;
       validate.textContent = "Validating…";
       result.replaceChildren();
+      // Progress while the sandbox runs the function (a few seconds; an endless loop is
+      // stopped after one call of the per-call limit).
+      const progress = document.createElement("p");
+      progress.className = "muted small validate-progress";
+      result.append(progress);
+      const perCall = Number(root.dataset.perCall || 5);
+      const started = Date.now();
+      const tick = () => {
+        const s = Math.floor((Date.now() - started) / 1000);
+        progress.textContent = `Running your function in the sandbox on the test situations… ${s} s (each call may take at most ${perCall} s).`;
+      };
+      tick();
+      const timer = window.setInterval(tick, 500);
       try {
         const response = await fetch(root.dataset.validateUrl, {
           method: "POST",
@@ -84,12 +101,23 @@
             direction: direction ? direction.value : "native",
           }),
         });
-        const data = await response.json();
+        let data = await response.json();
+        // The validation runs in a worker: poll until it is done (two minutes at most).
+        const poll = data.poll;
+        const stop = Date.now() + 120000;
+        while (data.status === "queued" || data.status === "running") {
+          validate.textContent = data.status === "running" ? "Running…" : "Queued…";
+          if (Date.now() > stop) throw new Error("no answer in two minutes");
+          await new Promise((done) => setTimeout(done, 500));
+          data = await (await fetch(poll)).json();
+        }
         if (data.ok) showOk(data.rewards);
         else showErrors(data.errors);
       } catch (err) {
         showErrors([{ type: "NETWORK_ERROR", message: "Could not reach the server: " + err }]);
       } finally {
+        window.clearInterval(timer);
+        progress.remove();
         validate.disabled = false;
         validate.textContent = "Validate";
       }

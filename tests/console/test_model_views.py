@@ -130,6 +130,7 @@ def test_reward_errors_are_shown_with_their_lines(alice_client, store_dir) -> No
     )
     assert errors and errors[0]["type"] == "SYNTAX_ERROR" and errors[0]["lineNumber"] == 2
     assert "params[&#x27;speed&#x27;" in page  # the source is kept
+    assert 'data-jump="step-reward"' in page  # the page reopens at the editor, not the top
 
 
 def test_create_discrete_and_continuous(alice, alice_client, store_dir) -> None:
@@ -201,7 +202,7 @@ def test_downloads_need_a_checkpoint(alice_model, alice_client) -> None:
 def test_import_errors_are_clear(alice_client, store_dir) -> None:
     missing = alice_client.post("/models/import/", {"name": "imported"})
     assert missing.status_code == 400
-    assert "Choose a virtual-model archive to upload." in missing.content.decode()
+    assert "Choose a model archive to upload." in missing.content.decode()
     from django.core.files.uploadedfile import SimpleUploadedFile
 
     junk = SimpleUploadedFile("model.tar.gz", b"not an archive at all", "application/gzip")

@@ -20,7 +20,7 @@ import redis
 
 from training.rollout.envs import EnvSpec
 from training.rollout.vecenv import ROLLOUT_LIMITS, STEP_TIMEOUT_S, RolloutError, _WorkerVecEnv
-from training.sandbox import SandboxCrashed, SandboxProcess
+from training.sandbox import SandboxCrashed, SandboxProcess, checked
 from training.sandbox.protocol import ProtocolError, decode, encode
 
 log = logging.getLogger(__name__)
@@ -29,6 +29,14 @@ LaunchWorker = Callable[..., None]
 START_TIMEOUT_S = 120.0
 IDLE_TIMEOUT_S = 600.0
 KEY_TTL_S = 3600
+
+
+def _client(redis_url: str) -> redis.Redis:
+    """A client whose socket waits longer than our longest blocking pop: redis-py's default
+    read timeout (5 s in redis-py 8) would end a pop that is still legitimately waiting for a
+    slow step on a loaded machine ("Timeout reading from socket")."""
+    longest_pop = max(START_TIMEOUT_S, STEP_TIMEOUT_S, IDLE_TIMEOUT_S)
+    return redis.Redis.from_url(redis_url, socket_timeout=longest_pop + 30)
 
 
 def _keys(prefix: str, session: str, slot: int) -> tuple[str, str]:
@@ -119,10 +127,14 @@ class RemoteSlot:
             raise RolloutError(f"lost the connection to Redis: {exc}") from None
         if msg is None:
             raise RolloutError(f"a simulation worker gave no answer within {timeout:g} s")
-        if not isinstance(msg, dict):
+        kind = msg.get("kind") if isinstance(msg, dict) else None
+        if kind not in ("ready", "message", "error"):
             raise RolloutError("a simulation worker sent malformed data")
-        if msg.get("kind") == "error":
-            raise RolloutError(str(msg.get("message", "a simulation worker failed")))
+        if kind == "error":
+            text = msg.get("message")
+            if not isinstance(text, str):
+                raise RolloutError("a simulation worker sent malformed data")
+            raise RolloutError(text[: checked.MAX_TEXT] or "a simulation worker failed")
         return msg
 
 
@@ -182,8 +194,9 @@ class RemoteVecEnv(_WorkerVecEnv):
             slot.send(msg)
         replies = []
         for slot in self.slots:
-            value = slot.recv(STEP_TIMEOUT_S).get("value")
-            if not isinstance(value, dict):
+            msg = slot.recv(STEP_TIMEOUT_S)
+            value = msg.get("value")
+            if msg.get("kind") != "message" or not isinstance(value, dict):
                 raise RolloutError("a simulation worker sent malformed data")
             replies.append(value)
         return replies

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ipaddress
 import os
 import sys
 from argparse import ArgumentParser
@@ -13,6 +14,7 @@ from django.core.management.base import BaseCommand, CommandError
 from django.db import connections
 
 from console.launcher import ConsoleOptions, LaunchError, console_run
+from training.checks import isolation_summary
 
 
 class Command(BaseCommand):
@@ -48,6 +50,7 @@ class Command(BaseCommand):
         evaluation_concurrency: int,
         **options: Any,
     ) -> None:
+        refuse_debug_on_open_address(host, debug=settings.DEBUG)
         try:
             call_command("build_assets", verbosity=options["verbosity"])
         except CommandError as exc:
@@ -56,6 +59,8 @@ class Command(BaseCommand):
             self.stderr.write(f"warning: the code editor could not be built: {exc}")
         call_command("migrate", interactive=False, verbosity=options["verbosity"])
         connections.close_all()
+        for line in isolation_summary():  # what protects this machine from reward code
+            self.stdout.write(f"racecraft: {line}")
         launch = ConsoleOptions(
             host=host,
             port=port,
@@ -72,3 +77,20 @@ class Command(BaseCommand):
             console_run(launch, out=sys.stdout)
         except LaunchError as exc:
             raise CommandError(f"racecraft stopped: {exc}") from exc
+
+
+def refuse_debug_on_open_address(host: str, *, debug: bool) -> None:
+    """DEBUG pages show settings and tracebacks to whoever reaches them: with DEBUG on, the
+    console listens only on this machine (loopback). Raises CommandError otherwise."""
+    if not debug:
+        return
+    try:
+        loopback = ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        loopback = host == "localhost"
+    if not loopback:
+        raise CommandError(
+            f"refusing to listen on {host} with DEBUG on: debug pages show settings and "
+            "tracebacks to anyone who can reach them. Set DEBUG=0 (with SECRET_KEY and "
+            "ALLOWED_HOSTS) for a console other machines reach, or listen on 127.0.0.1."
+        )

@@ -36,12 +36,6 @@ TINY_HYPERPARAMETERS = {"num_episodes_between_training": 4, "num_epochs": 3, "ba
 
 
 @pytest.fixture
-def store_dir(tmp_path, settings):
-    settings.STORE_DIR = tmp_path / "store"
-    return settings.STORE_DIR
-
-
-@pytest.fixture
 def alice(db):
     return get_user_model().objects.create_user("alice", password="pw-alice-123")
 
@@ -288,7 +282,7 @@ def test_create_train_evaluate_export_import(store_dir, alice, files, tmp_path, 
     assert pressed, out
     assert job.status == JobStatus.COMPLETED and job.stopped_by == "user", out
     assert "Stopping: the job ends at its next safe point" in out
-    assert re.search(r"iteration \d+  eval \d+\.\d%  best \d+\.\d%", out), out
+    assert re.search(r"iteration \d+ running  \d+ episodes  eval \d+\.\d%  best \d+\.\d%", out), out
     assert "Completed (stopped by you)" in out
     assert job.worker.startswith("cli-")
     model.refresh_from_db()
@@ -318,7 +312,7 @@ def test_create_train_evaluate_export_import(store_dir, alice, files, tmp_path, 
               "--virtual", str(folder / "virtual.tar.gz"), "--logs", str(folder))  # fmt: skip
     assert out.count("Wrote the ") == 3
     expected = {
-        "oval-runner-car.tar.gz": {"model.onnx", "model_metadata.json"},
+        "oval-runner-car.tar.gz": {"model.pb", "model_metadata.json"},
         "virtual.tar.gz": {"reward_function.py"},
         "oval-runner-logs.tar.gz": set(),
     }
