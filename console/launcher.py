@@ -299,6 +299,9 @@ class WorkerPlan:
 
 JOB_NICE = 10
 """Niceness added to job workers (training, evaluation, simulation): the web goes first."""
+QUICK_NICE = 5
+"""Niceness added to the quick-task worker (reward validations, the reaper, the league): below
+the web server's pages, above the jobs."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -323,7 +326,9 @@ class ConsoleOptions:
 
     def workers(self) -> list[WorkerPlan]:
         plans = [
-            WorkerPlan("quick", (QUEUE_DEFAULT,), self.quick_concurrency),
+            WorkerPlan(
+                "quick", (QUEUE_DEFAULT,), self.quick_concurrency, min(QUICK_NICE, self.job_nice)
+            ),  # fmt: skip
             WorkerPlan("training", (QUEUE_TRAINING,), self.concurrency, self.job_nice),
             WorkerPlan(
                 "evaluation", (QUEUE_EVALUATION,), self.evaluation_concurrency, self.job_nice

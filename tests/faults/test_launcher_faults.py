@@ -27,7 +27,8 @@ from console.launcher import (
 def test_up_runs_one_worker_per_kind_of_work():
     plans = {p.name: p for p in ConsoleOptions(concurrency=2).workers()}
     assert set(plans) == {"quick", "training", "evaluation"}
-    assert plans["quick"].queues == ("default",) and plans["quick"].nice == 0
+    assert plans["quick"].queues == ("default",)
+    assert 0 < plans["quick"].nice < plans["training"].nice  # web > quick tasks > jobs
     assert plans["training"].queues == ("training",) and plans["training"].concurrency == 2
     assert plans["training"].nice > 0 and plans["evaluation"].nice > 0
     with_sim = {p.name for p in ConsoleOptions(simulation_slots=3).workers()}
