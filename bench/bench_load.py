@@ -232,7 +232,10 @@ def main() -> None:
     env = {k: v for k, v in os.environ.items() if k not in ("DATABASE_URL", "REDIS_URL")}
     env.update({"RACECRAFT_VAR_DIR": str(var), "DEBUG": "0", "SECRET_KEY": "bench-only-key",
                 "ALLOWED_HOSTS": "127.0.0.1,localhost", "LOG_LEVEL": "WARNING",
-                "RACECRAFT_MAX_ACTIVE_JOBS_PER_USER": "3"})  # fmt: skip
+                "RACECRAFT_MAX_ACTIVE_JOBS_PER_USER": "3",
+                # plain HTTP on loopback (production sits behind a TLS proxy)
+                "SECURE_SSL_REDIRECT": "0", "SECURE_HSTS_SECONDS": "0",
+                "RACECRAFT_VALIDATIONS_PER_USER": "50"})  # fmt: skip
     os.environ.update(env)
     for key in ("DATABASE_URL", "REDIS_URL"):
         os.environ.pop(key, None)
