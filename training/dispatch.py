@@ -11,6 +11,7 @@ from celery import current_app
 TRAIN_MODEL = "training.tasks.train_model"
 EVALUATE_MODEL = "training.tasks.evaluate_model"
 SIMULATE_ROLLOUT = "training.tasks.simulate_rollout"
+REPLAY_REWARD = "training.tasks.replay_reward"
 
 
 def send(task_name: str, *args: object, **kwargs: object) -> str:
