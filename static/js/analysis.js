@@ -141,8 +141,9 @@
       const ev = d.evaluations.find((e) => String(e.id) === select.value);
       if (!ev) { $("evaluation-legend").textContent = "No evaluation yet."; return; }
       const speeds = ev.laps.flatMap((l) => l.speed);
-      ev.laps.forEach((l) => t.drawPath(l.x, l.y, l.speed.map((s) => (s - Math.min(...speeds)) / ((Math.max(...speeds) - Math.min(...speeds)) || 1))));
-      $("evaluation-legend").textContent = ev.laps.map((l) => `lap ${l.lap[0]}: ${l.time_s[0]} s`).join(" · ") + ` · speed ${Math.min(...speeds)}–${Math.max(...speeds)} m/s (blue → red)`;
+      const range = [Math.min(...speeds), Math.max(...speeds)];
+      ev.laps.forEach((l) => t.drawPath(l.x, l.y, l.speed, null, range));
+      $("evaluation-legend").textContent = ev.laps.map((l) => `lap ${l.lap[0]}: ${l.time_s[0]} s`).join(" · ") + ` · speed ${range[0]}–${range[1]} m/s (blue → red)`;
     };
     select.onchange = draw;
     draw();

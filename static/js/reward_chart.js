@@ -9,6 +9,13 @@
     constructor(canvas, points) {
       this.canvas = canvas;
       this.points = [];
+      this.chart = null;
+      if (!window.RacecraftCharts) {
+        // The bundle is built with npm (manage.py build_assets); the page works without it.
+        canvas.insertAdjacentText("afterend", "The chart needs the charts bundle: run manage.py build_assets.");
+        (points || []).forEach((p) => this.add(p, false));
+        return;
+      }
       const Chart = window.RacecraftCharts.Chart;
       const series = (label, color, axis, extra) => ({ label, data: [], borderColor: color, backgroundColor: color, yAxisID: axis, pointRadius: 2, ...extra });
       this.chart = new Chart(canvas, {
@@ -47,6 +54,7 @@
     }
 
     draw() {
+      if (!this.chart) return;
       const pts = this.points, sets = this.chart.data.datasets;
       this.chart.data.labels = pts.map((p) => p.iteration);
       sets[0].data = pts.map((p) => p.train_reward);

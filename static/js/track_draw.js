@@ -69,11 +69,12 @@
       return `${data.kind} per step: blue ${lo.toFixed(2)}${unit} → red ${hi.toFixed(2)}${unit} (${data.steps} steps)`;
     }
 
-    // A path coloured by `values` (or one colour); returns [min, max] of the values.
-    drawPath(xs, ys, values, colour) {
+    // A path coloured by `values` over `range` ([min, max], default the values' own) or in
+    // one colour; returns the range used.
+    drawPath(xs, ys, values, colour, range) {
       const c = this.ctx;
       const vals = (values || []).filter((v) => v !== null);
-      const lo = vals.length ? Math.min(...vals) : 0, hi = vals.length ? Math.max(...vals) : 1;
+      const [lo, hi] = range || (vals.length ? [Math.min(...vals), Math.max(...vals)] : [0, 1]);
       c.lineWidth = 3;
       for (let i = 1; i < xs.length; i++) {
         const v = values ? values[i] : null;

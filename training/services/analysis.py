@@ -12,6 +12,7 @@ Replays run the user's reward function in the sandbox on a Celery worker (task
 
 from __future__ import annotations
 
+import functools
 import re
 import threading
 from collections import OrderedDict
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 
 from celery.result import AsyncResult
 
+from racing.track import Track
 from training import dispatch
 from training.analysis import charts
 from training.analysis.replay import ReplayError, episode_rows, replay_table, step_params
@@ -51,8 +53,14 @@ class Logs:
     action_names: list[str]
 
 
-def _track(model: RacingModel):
-    return track_catalog().load(model.track_id).in_direction(model.direction)
+def _track(model: RacingModel) -> Track:
+    return _load_track(model.track_id, model.direction)
+
+
+@functools.lru_cache(maxsize=32)
+def _load_track(track_id: str, direction: str) -> Track:
+    """A track in one direction (cached: building one checks its geometry, ~50 ms)."""
+    return track_catalog().load(track_id).in_direction(direction)
 
 
 def _action_names(model: RacingModel) -> list[str]:
