@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from racing.simtrace import TraceRow
 from training.interchange.logbook import TrainingLog
 
@@ -85,3 +87,40 @@ def test_malformed_rows_and_entries_are_dropped() -> None:
     log.add_entry({"car": 7, "env_episode": 0})
     (it,) = log.take()
     assert len(it.episodes) == 1 and len(it.episodes[0].rows) == 1
+
+
+def test_cars_of_an_env_runner_log_deepracer_times() -> None:
+    """Real cars (EnvRunner): each logged episode starts with a prepare row stamped at its start
+    on the car's running clock, so last - first tstamp is the entry's elapsed time."""
+    import numpy as np
+
+    from training.rollout.envs import EnvRunner, EnvSpec
+
+    spec = EnvSpec(track="racecraft_oval", action_space=[{"steering_angle": a, "speed": 2.0}
+                                                         for a in (-30, 0, 30)])  # fmt: skip
+    runner = EnvRunner([spec.make(), spec.make()])
+    runner.reset([1, 2])
+    log = TrainingLog(2)
+    rng = np.random.default_rng(0)
+    try:
+        while log.logged + log.queued < 6:
+            _, _, _, infos = runner.step(rng.integers(0, 3, 2))
+            log.add_rows([info["trace"] for info in infos])
+            for info in infos:
+                if info.get("episode_entry"):
+                    log.add_entry(info["episode_entry"])
+    finally:
+        runner.close()
+    episodes = [e for it in log.take() for e in it.episodes]
+    assert len(episodes) >= 4
+    clocks: dict[int, float] = {}
+    for e in episodes:
+        first, last = e.rows[0], e.rows[-1]
+        assert first.episode_status == "prepare" or len(e.rows) == 1
+        assert last.tstamp - first.tstamp == pytest.approx(
+            e.entry["elapsed_time_in_milliseconds"] / 1000, abs=2e-3
+        )
+        assert e.entry["start_time"] == round(first.tstamp * 1000)
+        car = e.entry["car"]
+        assert first.tstamp >= clocks.get(car, 0.0) - 1e-9  # a car's clock never restarts
+        clocks[car] = last.tstamp

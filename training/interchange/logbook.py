@@ -73,6 +73,11 @@ class TrainingLog:
         self._entries: dict[tuple[str, str], dict] = {}
 
     @property
+    def queued(self) -> int:
+        """Finished episodes not handed out yet."""
+        return len(self._finished)
+
+    @property
     def iterations_logged(self) -> int:
         """How many iterations :meth:`take` has handed out."""
         return -(-self.logged // self.per_iteration)

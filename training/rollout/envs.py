@@ -135,7 +135,8 @@ class EpisodeBook:
         self.first_step = True
 
     def trace(self, row: TraceRow, done: bool) -> list:
-        """The step's sim-trace row on the car's clock, followed by the car's id."""
+        """The step's sim-trace row on the car's clock (``wall_clock`` now), then the car's
+        id."""
         if self.first_step:
             row = row._replace(tstamp=self.clock_s)
             if not done:
@@ -143,7 +144,7 @@ class EpisodeBook:
         else:
             row = row._replace(tstamp=self.clock_s + row.tstamp)
         self.first_step = False
-        return [*row, self.car]
+        return [*row.stamped(), self.car]
 
     def step(self, reward: float, info: dict, done: bool) -> dict | None:
         self.reward += reward
