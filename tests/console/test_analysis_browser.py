@@ -61,6 +61,7 @@ def test_analysis_heatmaps_episode_and_replay(trained, page, web) -> None:  # no
     page.fill("#id_username", "analyst")
     page.fill("#id_password", PASSWORD)
     page.click("button[type=submit]")
+    page.wait_for_url(lambda url: "/accounts/login/" not in url)
     page.goto(f"{web}/models/{trained}/")
     page.click("#analysis-link")
     page.wait_for_url(f"**/models/{trained}/analysis/")
