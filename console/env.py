@@ -13,8 +13,6 @@ from django.core.exceptions import ImproperlyConfigured
 _TRUE = frozenset({"1", "true", "yes", "on"})
 _FALSE = frozenset({"0", "false", "no", "off"})
 
-BUCKET_PREFIX = "deepracer"
-
 
 def _raw(name: str) -> str | None:
     value = os.environ.get(name)
@@ -62,20 +60,3 @@ def envlist(name: str, default: list[str] | None = None) -> list[str]:
     if value is None:
         return list(default or [])
     return [item.strip() for item in value.split(",") if item.strip()]
-
-
-def bucket_name(value: str) -> str:
-    """Check an object-store bucket name: DeepRacer tooling expects it to start with
-    "deepracer", and S3 requires 3-63 lowercase letters, digits, dots or hyphens."""
-    if not value.startswith(BUCKET_PREFIX):
-        raise ImproperlyConfigured(
-            f"MINIO_BUCKET={value!r} must start with {BUCKET_PREFIX!r} "
-            "(DeepRacer tools only read buckets named deepracer*)"
-        )
-    allowed = set("abcdefghijklmnopqrstuvwxyz0123456789.-")
-    if not 3 <= len(value) <= 63 or not set(value) <= allowed or value[-1] in ".-":
-        raise ImproperlyConfigured(
-            f"MINIO_BUCKET={value!r} is not a valid bucket name "
-            "(3-63 lowercase letters, digits, dots or hyphens)"
-        )
-    return value

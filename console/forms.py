@@ -10,10 +10,11 @@ from django.contrib.auth.forms import UserCreationForm
 from django.core.validators import RegexValidator
 
 from console import tracks
+from training.interchange.archive import ImportLimits
 from training.models import MODEL_NAME_RE, Direction
 
-MAX_IMPORT_BYTES = 1024**3
-"""Largest virtual-model archive accepted (DeepRacer on AWS: 1 GB)."""
+MAX_IMPORT_BYTES = ImportLimits().max_upload_bytes
+"""Largest model archive accepted: the reader's own limit, so the form and it agree."""
 
 _name_field = {
     "max_length": 64,
@@ -40,13 +41,15 @@ class ImportForm(forms.Form):
         label="Virtual model (.tar.gz)",
         help_text="A virtual model downloaded from Racecraft: model_metadata.json, "
         "hyperparameters.json, reward_function.py and a checkpoint.",
-        error_messages={"required": "Choose a virtual-model archive to upload."},
+        error_messages={"required": "Choose a model archive to upload."},
     )
 
     def clean_archive(self) -> Any:
         upload = self.cleaned_data["archive"]
         if upload.size > MAX_IMPORT_BYTES:
-            raise forms.ValidationError("The archive is larger than 1 GB.")
+            raise forms.ValidationError(
+                f"The archive is larger than {MAX_IMPORT_BYTES // 2**20} MB, the most accepted."
+            )
         if upload.size == 0:
             raise forms.ValidationError("The archive is empty.")
         return upload

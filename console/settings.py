@@ -8,14 +8,16 @@ See README.md for the table of variables.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import dj_database_url
 from celery.schedules import crontab
 from django.core.exceptions import ImproperlyConfigured
 
-from console.env import bucket_name, envbool, envint, envlist, envstr
+from console.env import envbool, envint, envlist, envstr
 from console.redisconf import celery_settings, channel_layers
+from training.storage import DEFAULT_BUCKET, StoreError, check_bucket_name
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 # Runtime state (SQLite file, embedded Redis socket, local object store); git-ignored.
@@ -53,6 +55,7 @@ MIDDLEWARE = [
     "django.contrib.auth.middleware.AuthenticationMiddleware",
     "django.contrib.messages.middleware.MessageMiddleware",
     "django.middleware.clickjacking.XFrameOptionsMiddleware",
+    "console.throttle.ThrottleMiddleware",
 ]
 
 ROOT_URLCONF = "console.urls"
@@ -68,6 +71,7 @@ TEMPLATES = [
                 "django.template.context_processors.request",
                 "django.contrib.auth.context_processors.auth",
                 "django.contrib.messages.context_processors.messages",
+                "console.context_processors.sandbox_warning",
             ],
         },
     },
@@ -174,17 +178,33 @@ MINIO_ENDPOINT = envstr("MINIO_ENDPOINT")
 MINIO_ACCESS_KEY = envstr("MINIO_ACCESS_KEY")
 MINIO_SECRET_KEY = envstr("MINIO_SECRET_KEY")
 MINIO_SECURE = envbool("MINIO_SECURE", False)
-MINIO_BUCKET = bucket_name(envstr("MINIO_BUCKET", "deepracer-models"))
+try:
+    MINIO_BUCKET = check_bucket_name(envstr("MINIO_BUCKET", DEFAULT_BUCKET))
+except StoreError as exc:
+    raise ImproperlyConfigured(f"MINIO_BUCKET: {exc}") from None
 if MINIO_ENDPOINT and not (MINIO_ACCESS_KEY and MINIO_SECRET_KEY):
     raise ImproperlyConfigured("MINIO_ENDPOINT is set: MINIO_ACCESS_KEY and MINIO_SECRET_KEY too")
 STORE_DIR = Path(envstr("STORE_DIR", str(VAR_DIR / "store")))
 
-# Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 # Training: rollouts on this machine (0) or on that many `-Q simulation` workers elsewhere.
 RACECRAFT_REMOTE_ROLLOUT_SLOTS = envint("RACECRAFT_REMOTE_ROLLOUT_SLOTS", 0, minimum=0)
 RACECRAFT_MAX_MODELS_PER_USER = envint("RACECRAFT_MAX_MODELS_PER_USER", 50, minimum=1)
 RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = envint("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER", 2, minimum=1)
+
+# Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks")))
+# Reward code runs only where every isolation protection is in force (training/sandbox/
+# requirements.py); 1 accepts weaker isolation and shows a warning on every page.
+RACECRAFT_ALLOW_WEAK_SANDBOX = envbool("RACECRAFT_ALLOW_WEAK_SANDBOX", False)
+# Reward validations run as Celery tasks; per user: at once, and started per minute.
+RACECRAFT_VALIDATIONS_PER_USER = envint("RACECRAFT_VALIDATIONS_PER_USER", 2, minimum=1)
+RACECRAFT_VALIDATIONS_PER_MINUTE = envint("RACECRAFT_VALIDATIONS_PER_MINUTE", 10, minimum=1)
+# Sign-up and log-in POSTs per address (log-in also per user name): django-ratelimit rates.
+RACECRAFT_LOGIN_RATE = envstr("RACECRAFT_LOGIN_RATE", "10/m")
+RACECRAFT_SIGNUP_RATE = envstr("RACECRAFT_SIGNUP_RATE", "5/h")
+for _name in ("RACECRAFT_LOGIN_RATE", "RACECRAFT_SIGNUP_RATE"):
+    if not re.fullmatch(r"\d+/\d*[smhd]", globals()[_name]):
+        raise ImproperlyConfigured(f"{_name}={globals()[_name]!r} is not a rate like 10/m")
 
 LOGGING = {
     "version": 1,

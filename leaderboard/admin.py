@@ -13,7 +13,7 @@ from leaderboard.models import (
     Season,
     Submission,
 )
-from leaderboard.ranking import format_ms
+from training.formatting import format_lap_ms
 
 
 class EventInline(admin.TabularInline):
@@ -79,7 +79,7 @@ class SubmissionAdmin(admin.ModelAdmin):
 
     @admin.display(description="Time", ordering="score_ms")
     def time(self, obj: Submission) -> str:
-        return format_ms(obj.score_ms)
+        return format_lap_ms(obj.score_ms)
 
 
 @admin.register(RacerProfile)

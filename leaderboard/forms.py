@@ -78,11 +78,6 @@ class EventForm(forms.Form):
                                      initial=1.0)  # fmt: skip
     bot_lane_changes = forms.BooleanField(required=False)
 
-    LATER_FIELDS = (
-        "number_of_objects", "randomize_objects", "bot_count", "bot_speed_mps",
-        "bot_lane_changes",
-    )  # fmt: skip
-
     def __init__(self, *args, public: bool, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.fields["track_id"].choices = _track_choices()

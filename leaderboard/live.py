@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from leaderboard.models import Submission
-from leaderboard.ranking import format_ms
 from leaderboard.selectors import leaderboard_rows
 from training import live
+from training.formatting import format_lap_ms
 
 MESSAGE_TYPE = "league.result"
 
@@ -25,7 +25,7 @@ def result_message(submission: Submission) -> dict:
             "racer_id": submission.racer_id,
             "status": submission.status,
             "status_label": submission.get_status_display(),
-            "time": format_ms(submission.score_ms),
+            "time": format_lap_ms(submission.score_ms),
             "reason": submission.reason,
         },
         "rows": [row.as_dict() for row in leaderboard_rows(submission.event)],

@@ -19,6 +19,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
+from training.formatting import format_lap_ms
+
 BEST_LAP, AVERAGE_LAP, TOTAL_TIME = "BEST_LAP", "AVERAGE_LAP", "TOTAL_TIME"
 METHODS = (BEST_LAP, AVERAGE_LAP, TOTAL_TIME)
 
@@ -161,19 +163,10 @@ def leaderboard(entries: Iterable[Entry]) -> list[Row]:
     return [Row(rank=i, entry=e, gap_ms=e.score_ms - first) for i, e in enumerate(ordered, 1)]
 
 
-def format_ms(ms: int | None) -> str:
-    """``MM:SS.mmm`` (DeepRacer's time format); an em dash for no time."""
-    if ms is None:
-        return "—"
-    minutes, rest = divmod(int(ms), 60_000)
-    seconds, millis = divmod(rest, 1000)
-    return f"{minutes:02d}:{seconds:02d}.{millis:03d}"
-
-
 def format_gap(ms: int) -> str:
     """``+S.mmm`` seconds behind the leader (minutes when a minute or more); ``—`` for first."""
     if ms <= 0:
         return "—"
     if ms >= 60_000:
-        return f"+{format_ms(ms)}"
+        return f"+{format_lap_ms(ms)}"
     return f"+{ms // 1000}.{ms % 1000:03d}"

@@ -19,6 +19,7 @@ from leaderboard.models import (
     Season,
     Submission,
 )
+from training.formatting import format_lap_ms
 from training.models import RacingModel
 
 
@@ -86,7 +87,7 @@ def leaderboard_rows(event: Event) -> list[LeaderboardRow]:
                 alias=(profile.alias if profile and profile.alias else f"racer-{sub.racer_id}"),
                 country=profile.country if profile else "",
                 colour=profile.colour if profile else "#ff9f1c",
-                time=ranking.format_ms(row.entry.score_ms),
+                time=format_lap_ms(row.entry.score_ms),
                 score_ms=row.entry.score_ms,
                 gap=ranking.format_gap(row.gap_ms),
                 off_tracks=sub.off_tracks,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -11,32 +11,24 @@ from gymnasium import spaces
 
 from racing.actions import ActionSpec
 from racing.car import REPORTED_POINT_AHEAD_M, CarSim, Pose
-from racing.params import RaceObject, build_params
+from racing.lidar import LidarSensor
+from racing.objects import KIND_BOT, RaceObject
+from racing.params import build_params
+from racing.race import RaceConfig, RaceType
+from racing.reward import RewardFunction, RewardValueError, judge_reward, progress_reward
 from racing.rules import RaceRules, RaceTracker, Status
 from racing.sensors import CameraSensor, ReferenceCamera, ground_for, validate_sensors
 from racing.simtrace import TraceRow
-from racing.track import Track, TrackError
+from racing.track import Location, Track, TrackError
 from racing.tracks import TrackCatalog
+from racing.world import RaceWorld
 
 ROUND_ROBIN_ADVANCE = 0.05
 """DeepRacer moves each episode's start this share of the track further on."""
 CAMERA_RESOLUTION_M = 0.005
 VIEW_RESOLUTION_M = 0.01
-REWARD_LIMIT = 1e5
-
-RewardFunction = Callable[[dict], float]
-
-
-class RewardValueError(ValueError):
-    """The reward function returned something that is not a usable number."""
-
-
-def progress_reward(params: dict) -> float:
-    """The default reward: stay near the centre line, all wheels on the track."""
-    if not params["all_wheels_on_track"] or params["is_offtrack"]:
-        return 1e-3
-    half = params["track_width"] / 2
-    return float(max(1e-3, 1.0 - (params["distance_from_center"] / half) ** 2))
+Observation = np.ndarray | dict[str, np.ndarray]
+__all__ = ["RacingEnv", "RewardValueError", "progress_reward"]
 
 
 class RacingEnv(gym.Env):
@@ -46,8 +38,12 @@ class RacingEnv(gym.Env):
     ``direction`` (``'native'``, ``'ccw'`` or ``'cw'``), ``action_space`` (DeepRacer's
     ``model_metadata.json`` form: a list of ``{steering_angle, speed}`` for discrete actions,
     ``{steering_angle: {low, high}, speed: {low, high}}`` for continuous ones; ``None`` is
-    DeepRacer's default 10 discrete actions), ``sensors`` (``["FRONT_FACING_CAMERA"]`` or
-    ``["STEREO_CAMERAS"]``), ``reward_function`` (a callable taking DeepRacer's ``params`` dict),
+    DeepRacer's default 10 discrete actions), ``sensors`` (one camera, ``FRONT_FACING_CAMERA``
+    or ``STEREO_CAMERAS``, optionally with one of ``LIDAR``, ``SECTOR_LIDAR``,
+    ``DISCRETIZED_SECTOR_LIDAR``; see :func:`validate_sensors`), ``race`` (a
+    :class:`RaceConfig` or its ``to_dict()`` form: time trial, object avoidance with boxes,
+    head-to-bot with bot cars; ``None`` is a time trial), ``reward_function`` (a callable
+    taking DeepRacer's ``params`` dict),
     ``rules`` (:class:`RaceRules`: laps, resets, penalties, limits), ``start``
     (``'round_robin'``: each episode starts 5 % of the track further on, as DeepRacer training;
     ``'start_line'``), ``alternate_direction`` (flip the direction every episode),
@@ -59,8 +55,23 @@ class RacingEnv(gym.Env):
     ``Box([steer_low, speed_low], [steer_high, speed_high])`` (degrees, m/s). Executed actions are
     clipped to ±30° and 0.1-4 m/s. An action outside the space raises ``ActionSpaceError``.
 
-    **Observation space**: the camera image, ``Box(0, 255, (120, 160, C), uint8)``, grayscale,
-    ``C`` = 1 for the front camera and 2 for the stereo pair (left, right).
+    **Observation space**: with a camera only, the image ``Box(0, 255, (120, 160, C), uint8)``,
+    grayscale, ``C`` = 1 for the front camera and 2 for the stereo pair (left, right). With a
+    LIDAR, a ``Dict`` keyed by DeepRacer's sensor ids (gymnasium sorts them): the camera's id
+    (``"FRONT_FACING_CAMERA"`` or ``"STEREO_CAMERAS"``) → that image, and the LIDAR's id →
+    ``"LIDAR"``: ``Box(0.15, 1.0, (64,), float32)``, ranges in metres clipped at 1 m;
+    ``"SECTOR_LIDAR"``: ``Box(0, 1, (8,), float32)``, 1 where a sector has a return nearer than
+    0.5 m; ``"DISCRETIZED_SECTOR_LIDAR"``: ``Box(0, 1, (64,), float32)``, 8 sectors × one-hot
+    of 8 bins of 0.25 m (see :mod:`racing.lidar`; the scan covers all but the 60° ahead).
+
+    **Objects**: object avoidance puts 1-6 DeepRacer boxes (0.24 × 0.39 × 0.27 m) in the lanes
+    (fixed, or placed at random each episode); head-to-bot puts 1-6 bot cars that drive their
+    lane at a constant speed and may change lanes (see :mod:`racing.race`, :mod:`racing.objects`).
+    They are PyBullet bodies: the car bumps into them and a contact is a crash (a bot only when
+    the car ran into it from behind; see :mod:`racing.world`). Cameras and the video show them;
+    LIDAR sees them; every object key of ``params`` describes them. A car that would start
+    within 1 m of an object starts in the other lane; one respawned near a box goes 1 m behind
+    it in the other lane.
 
     **Step**: 1/15 s of simulated time (DeepRacer's 15 Hz), 4 physics sub-steps.
 
@@ -68,10 +79,11 @@ class RacingEnv(gym.Env):
     NaN, ±inf or a value outside ±1e5 raises :class:`RewardValueError` naming the step.
     Steps spent in a reset penalty are not rewarded.
 
-    **Termination**: the last lap complete, off track (all four wheels off), crashed,
-    reversed (progress falls 15 steps in a row) or immobilized (≤ 0.3 mm per step for 15
-    steps), unless ``rules.resets`` forgives it with a penalty and a respawn. **Truncation**:
-    ``rules.max_steps`` steps or ``rules.time_limit_s`` simulated seconds (status ``time_up``).
+    **Termination**: the last lap complete, off track (all four wheels off), crashed (status
+    ``crashed``, ``params['is_crashed']``), reversed (progress falls 15 steps in a row) or
+    immobilized (≤ 0.3 mm per step for 15 steps), unless ``rules.resets`` forgives it with a
+    penalty and a respawn. **Truncation**: ``rules.max_steps`` steps or ``rules.time_limit_s``
+    simulated seconds (status ``time_up``).
 
     **Info**: ``status`` (DeepRacer's episode status), ``progress``, ``lap`` (current lap),
     ``laps`` (finished :class:`LapRecord` s), ``lap_finished``, ``reset`` and ``penalty_s``,
@@ -80,7 +92,8 @@ class RacingEnv(gym.Env):
     **Determinism**: the same seed and actions give the same observations and rewards; a
     seeded reset restarts the round-robin start sequence and the alternating direction.
 
-    **Version history**: v0 (first release).
+    **Version history**: v0 (first release; objects, bots and LIDAR added without changing
+    the camera-only time trial).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 15}
@@ -92,6 +105,7 @@ class RacingEnv(gym.Env):
         direction: str = "native",
         action_space: list | tuple | dict | None = None,
         sensors: Sequence[str] = ("FRONT_FACING_CAMERA",),
+        race: RaceConfig | dict | None = None,
         reward_function: RewardFunction | None = None,
         rules: RaceRules | None = None,
         start: str = "round_robin",
@@ -123,6 +137,10 @@ class RacingEnv(gym.Env):
         self.sensors = validate_sensors(list(sensors))
         self.reward_function = reward_function or progress_reward
         self.rules = rules or RaceRules()
+        if race is None:
+            race = RaceConfig()
+        self.race = race if isinstance(race, RaceConfig) else RaceConfig.from_dict(race)
+        self._has_objects = self.race.race_type is not RaceType.TIME_TRIAL
         self.start_mode = start
         self.alternate_direction = alternate_direction
         self.render_mode = render_mode
@@ -130,8 +148,18 @@ class RacingEnv(gym.Env):
 
         ground = ground_for(self.track, resolution=CAMERA_RESOLUTION_M, rgb=False)
         self.camera = CameraSensor(ground, self.sensors[0])
-        self.observation_space = spaces.Box(0, 255, self.camera.shape, dtype=np.uint8)
+        image_space = spaces.Box(0, 255, self.camera.shape, dtype=np.uint8)
+        self.lidar = LidarSensor(self.sensors[1]) if len(self.sensors) > 1 else None
+        if self.lidar is None:
+            self.observation_space = image_space
+        else:
+            self.observation_space = spaces.Dict(
+                {self.sensors[0]: image_space, self.sensors[1]: self.lidar.space}
+            )
         self.sim = CarSim(substeps=substeps)
+        self.world = RaceWorld(self.sim, self.race, self.rules)
+        if self._has_objects:  # fail now, not at the first reset, if they cannot fit
+            self.world.reset(self.track, np.random.default_rng(0))
         if camera_backend == "pybullet":
             if self.sensors[0] != "FRONT_FACING_CAMERA":
                 raise ValueError("the pybullet camera backend renders the front camera only")
@@ -139,20 +167,20 @@ class RacingEnv(gym.Env):
                 self.sim.client, ground_for(self.track, resolution=CAMERA_RESOLUTION_M, rgb=True)
             )
             self.camera.observe = lambda pose, objects=(): reference.render(pose)[..., None]
-        self.objects: tuple[RaceObject, ...] = ()
         self.tracker = RaceTracker(self.rules, self.track.length, self.track.closed)
         self.episode = -1
         self.pose = Pose(0.0, 0.0, 0.0)
         self._view = None
         self._hint: int | None = None
         self._point = (0.0, 0.0)
-        self._last_action: tuple[float, float] = (0.0, 0.0)
         self.params: dict = {}
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode. ``options`` may set ``start_progress`` (percent of the lap),
-        ``offset`` (metres left of the centre line) and ``heading_offset_deg``."""
+        ``offset`` (metres left of the centre line; without it a start within 1 m of an object
+        is moved to the other lane) and ``heading_offset_deg``. Boxes and bots are placed
+        first, from ``np_random``."""
         super().reset(seed=seed)
         options = options or {}
         if seed is not None:
@@ -162,15 +190,21 @@ class RacingEnv(gym.Env):
         self.episode += 1
         if self.alternate_direction and self.track.closed and self.episode > 0:
             self._set_track(not self.track.is_reversed)
+        if self._has_objects:
+            self.world.reset(self.track, self.np_random)
         if "start_progress" in options:
             start_s = float(options["start_progress"]) / 100.0 * self.track.length
         elif self.start_mode == "round_robin":
             start_s = (self.episode * ROUND_ROBIN_ADVANCE * self.track.length) % self.track.length
         else:
             start_s = 0.0
+        if "offset" in options:
+            offset = float(options["offset"])
+        else:
+            offset = (self.world.start_offset(start_s) if self._has_objects else None) or 0.0
         self._place_at(
             start_s,
-            offset=float(options.get("offset", 0.0)),
+            offset=offset,
             yaw_offset=math.radians(float(options.get("heading_offset_deg", 0.0))),
         )
         loc = self.track.locate(*self._point)
@@ -178,19 +212,15 @@ class RacingEnv(gym.Env):
         self.tracker = RaceTracker(self.rules, self.track.length, self.track.closed)
         self.tracker.start(loc.s)
         self.sim_time = 0.0
-        self._last_action = (0.0, 0.0)
-        self.params = build_params(
-            track=self.track,
-            pose=self.pose,
+        self.params = self._params(
             loc=loc,
             wheels_on_track=self._wheels_on_track(),
             steering_angle=0.0,
             speed=0.0,
             progress=0.0,
             steps=0,
-            objects=self.objects,
         )
-        obs = self.camera.observe(self.pose, self.objects)
+        obs = self._observe()
         info = {
             "status": Status.PREPARE.value,
             "progress": 0.0,
@@ -205,19 +235,25 @@ class RacingEnv(gym.Env):
         if self.episode < 0:
             raise RuntimeError("call reset() before step()")
         steering, speed = self.actions.decode(action)
-        self._last_action = (steering, speed)
         old_point = self._point
+        if self._has_objects:
+            self.world.advance(self.sim.dt)  # bots move first: contacts come from this step
         self.pose = self.sim.step(steering, speed)
         self._point = self.pose.point_ahead(REPORTED_POINT_AHEAD_M)
         loc = self.track.locate(self._point[0], self._point[1], self._hint)
         self._hint = loc.segment
         wheels = self._wheels_on_track()
         moved = math.hypot(self._point[0] - old_point[0], self._point[1] - old_point[1])
-        judged = self.tracker.update(s=loc.s, dt=self.sim.dt, moved_m=moved, wheels_on_track=wheels)
+        crash = self.world.crash(loc.s, (self.pose.x, self.pose.y)) if self._has_objects else None
+        judged = self.tracker.update(
+            s=loc.s,
+            dt=self.sim.dt,
+            moved_m=moved,
+            wheels_on_track=wheels,
+            crashed=crash is not None,
+        )
         self.sim_time = self.tracker.sim_time
-        self.params = build_params(
-            track=self.track,
-            pose=self.pose,
+        self.params = self._params(
             loc=loc,
             wheels_on_track=wheels,
             steering_angle=steering,
@@ -226,12 +262,13 @@ class RacingEnv(gym.Env):
             steps=self.tracker.steps,
             is_crashed=judged.status is Status.CRASHED,
             sim_time=self.sim_time,
-            objects=self.objects,
         )
-        reward = self._reward(self.params)
+        reward = judge_reward(self.reward_function, self.params)
         if judged.reset:
-            self._respawn(loc)
-        obs = self.camera.observe(self.pose, self.objects)
+            if self._has_objects:
+                self.world.advance(judged.penalty_s)  # the bots drive on during the penalty
+            self._respawn(loc, crash if judged.status is Status.CRASHED else None)
+        obs = self._observe()
         done = judged.done
         trace = TraceRow(
             episode=self.episode,
@@ -281,6 +318,11 @@ class RacingEnv(gym.Env):
             self._view = ChaseView(ground) if self.render_view == "chase" else TopDownView(ground)
         return self._view.render(self.pose, self.objects)
 
+    @property
+    def objects(self) -> tuple[RaceObject, ...]:
+        """The boxes or bot cars on the track now (empty in a time trial)."""
+        return self.world.objects
+
     def close(self) -> None:
         self.sim.close()
         super().close()
@@ -304,14 +346,51 @@ class RacingEnv(gym.Env):
         self.pose = Pose(x, y, yaw)
         self._point = (px, py)
 
-    def _respawn(self, loc) -> None:
-        """After a forgiven failure: back on the nearer lane at the last progress, at rest."""
-        s = loc.s
-        lane = self.track.width_at(loc) / 4
-        self._place_at(s, offset=lane if loc.left else -lane)
+    def _respawn(self, loc: Location, crash: RaceObject | None) -> None:
+        """After a forgiven failure, at rest: where it is after running into a bot; 1 m behind a
+        box in the other lane when one is close (progress goes back with it); else on the
+        nearer lane at the last progress."""
+        if crash is not None and crash.kind == KIND_BOT:
+            self.sim.place(self.pose.x, self.pose.y, self.pose.yaw)
+            self.tracker.respawned_at(loc.s)
+            return
+        spot = self.world.respawn_spot(loc.s) if self._has_objects else None
+        if spot is not None:
+            self._place_at(spot.s, offset=spot.offset)
+        else:
+            lane = self.track.width_at(loc) / 4
+            self._place_at(loc.s, offset=lane if loc.left else -lane)
         new_loc = self.track.locate(*self._point)
         self._hint = new_loc.segment
-        self.tracker.respawned_at(new_loc.s)
+        if spot is not None:
+            self.tracker.advance(new_loc.s)
+        else:
+            self.tracker.respawned_at(new_loc.s)
+
+    def _params(self, *, loc: Location, **state) -> dict:
+        """This step's ``params``; ``object_in_camera`` asks the camera about the next object."""
+        objects = self.world.objects
+        params = build_params(
+            track=self.track,
+            pose=self.pose,
+            loc=loc,
+            objects=objects,
+            object_locations=self.world.locations,
+            **state,
+        )
+        if objects:
+            ahead = objects[params["closest_objects"][1]]
+            params["object_in_camera"] = self.camera.sees(self.pose, ahead)
+        return params
+
+    def _observe(self) -> Observation:
+        """The observation: the image, or the image and the LIDAR reading in a dict."""
+        objects = self.world.objects
+        image = self.camera.observe(self.pose, objects)
+        if self.lidar is None:
+            return image
+        reading = self.lidar.observe(self.pose, objects, self.np_random)
+        return {self.sensors[0]: image, self.sensors[1]: reading}
 
     def _wheels_on_track(self) -> int:
         xs, ys = self.pose.wheel_contacts()
@@ -320,18 +399,3 @@ class RacingEnv(gym.Env):
     def _closest_waypoint(self, loc) -> int:
         behind, ahead = self.track.closest_waypoints(loc)
         return behind if loc.fraction < 0.5 else ahead
-
-    def _reward(self, params: dict) -> float:
-        value = self.reward_function(params)
-        try:
-            reward = float(value)
-        except (TypeError, ValueError) as exc:
-            raise RewardValueError(
-                f"step {params['steps']}: the reward function returned {value!r}, not a number"
-            ) from exc
-        if not math.isfinite(reward) or abs(reward) > REWARD_LIMIT:
-            raise RewardValueError(
-                f"step {params['steps']}: the reward function returned {reward}, outside "
-                f"[-{REWARD_LIMIT:g}, {REWARD_LIMIT:g}]"
-            )
-        return reward

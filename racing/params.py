@@ -8,15 +8,18 @@ Units and conventions: ``x``, ``y`` metres at the point 0.14 m ahead of the car'
 ``heading`` degrees in -180..180, counter-clockwise from +x; ``speed`` and ``steering_angle``
 as commanded (m/s, degrees, positive = left); ``progress`` percent 0..100 from the episode's
 start point; ``closest_waypoints`` ``[behind, ahead]``; ``is_left_of_center`` relative to the
-driving direction; ``objects_heading`` in degrees (DeepRacer's documented unit).
+driving direction; ``objects_heading`` in degrees (DeepRacer's documented unit; its simulator
+passes radians). ``object_in_camera`` is computed by the caller (the env asks its camera).
 """
 
 from __future__ import annotations
 
+import bisect
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 from racing.car import REPORTED_POINT_AHEAD_M, Pose
+from racing.objects import KIND_BOT, RaceObject
 from racing.track import Location, Track
 
 PARAM_KEYS = (
@@ -50,20 +53,6 @@ PARAM_KEYS = (
 )
 
 
-@dataclass(frozen=True, slots=True)
-class RaceObject:
-    """An obstacle box or a bot car: centre ``x, y`` (m), ``heading`` (rad), ``speed`` (m/s)."""
-
-    x: float
-    y: float
-    heading: float = 0.0
-    speed: float = 0.0
-    length: float = 0.24
-    width: float = 0.39
-    height: float = 0.27
-    kind: str = "box"
-
-
 def heading_deg(yaw: float) -> float:
     """Yaw in radians to DeepRacer's heading in degrees, -180..180."""
     deg = math.degrees(yaw)
@@ -83,10 +72,12 @@ def build_params(
     steps: int,
     is_crashed: bool = False,
     sim_time: float = 0.0,
-    objects: tuple[RaceObject, ...] | list[RaceObject] = (),
+    objects: Sequence[RaceObject] = (),
+    object_locations: Sequence[Location] | None = None,
     object_in_camera: bool = False,
 ) -> dict:
-    """The ``params`` dict for one step. ``loc`` locates the reported point (0.14 m ahead)."""
+    """The ``params`` dict for one step. ``loc`` locates the reported point (0.14 m ahead);
+    ``object_locations`` (the objects located on ``track``) saves locating them again."""
     behind, ahead = track.closest_waypoints(loc)
     params = {
         "all_wheels_on_track": wheels_on_track == 4,
@@ -118,31 +109,48 @@ def build_params(
         "sim_time": float(sim_time),
     }
     if objects:
-        _add_objects(params, track, loc, objects)
+        if object_locations is None:
+            object_locations = [track.locate(o.x, o.y) for o in objects]
+        _add_objects(params, loc, objects, object_locations)
     return params
 
 
-def _add_objects(params: dict, track: Track, car: Location, objects) -> None:
-    locs = [track.locate(o.x, o.y) for o in objects]
-    params["objects_location"] = [(o.x, o.y) for o in objects]
+def _add_objects(
+    params: dict, car: Location, objects: Sequence[RaceObject], locs: Sequence[Location]
+) -> None:
+    """The object keys, as DeepRacer's ``get_object_reward_params`` fills them.
+
+    ``objects_distance``: each object's projection on the centre line, metres from the start
+    line in the driving direction. ``closest_objects``: ``[previous, next]`` by that distance
+    around the car's own projection, wrapping round the list (so with one object both are 0).
+    ``objects_left_of_center``: the object's side in the driving direction.
+    ``objects_speed`` and ``objects_heading``: a bot's speed (m/s) and heading (degrees,
+    -180..180); 0 for a box, as DeepRacer reports static obstacles.
+    """
+    bots = [o.kind == KIND_BOT for o in objects]
+    params["objects_location"] = [[float(o.x), float(o.y)] for o in objects]
     params["objects_distance"] = [lo.s for lo in locs]
     params["objects_left_of_center"] = [lo.left for lo in locs]
-    params["objects_speed"] = [float(o.speed) for o in objects]
-    params["objects_heading"] = [heading_deg(o.heading) for o in objects]
+    params["objects_speed"] = [
+        float(o.speed) if bot else 0.0 for o, bot in zip(objects, bots, strict=True)
+    ]
+    params["objects_heading"] = [
+        heading_deg(o.heading) if bot else 0.0 for o, bot in zip(objects, bots, strict=True)
+    ]
     params["objects_distance_from_center"] = [lo.distance for lo in locs]
-    # Ahead = the nearest object in front of the car along the track, behind = the nearest one
-    # behind it; on a loop every object is both, at some distance, so both always exist.
-    if track.closed:
-        gaps = [(lo.s - car.s) % track.length for lo in locs]
-        ahead = min(range(len(gaps)), key=gaps.__getitem__)
-        behind = max(range(len(gaps)), key=gaps.__getitem__)
-    else:
-        gaps = [lo.s - car.s for lo in locs]
-        front = [i for i, g in enumerate(gaps) if g >= 0]
-        back = [i for i, g in enumerate(gaps) if g < 0]
-        ahead = min(front, key=gaps.__getitem__) if front else 0
-        behind = max(back, key=gaps.__getitem__) if back else 0
-    params["closest_objects"] = [behind, ahead]
+    params["closest_objects"] = list(closest_objects([lo.s for lo in locs], car.s))
+
+
+def closest_objects(distances: Sequence[float], car_s: float) -> tuple[int, int]:
+    """``(previous, next)`` object indices around ``car_s`` (DeepRacer's ``find_prev_next``):
+    next is the first object strictly beyond the car along the centre line, wrapping to the
+    first one past the start line; previous is the one before it."""
+    order = sorted(range(len(distances)), key=distances.__getitem__)
+    ordered = [distances[i] for i in order]
+    nxt = bisect.bisect_right(ordered, car_s)
+    prev = nxt - 1 if nxt > 0 else len(ordered) - 1
+    nxt = nxt if nxt < len(ordered) else 0
+    return order[prev], order[nxt]
 
 
 # --------------------------------------------------------------------------- scenarios

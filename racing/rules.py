@@ -52,6 +52,8 @@ IMMOBILIZED_STEPS = 15
 IMMOBILIZED_DISTANCE_M = 0.0003
 MAX_EPISODE_STEPS = 100_000
 STALL_GAIN_M = 0.1
+EVALUATION_BOT_PAUSE_S = 2.0
+"""SimApp's default ``PENALTY_SECONDS`` in evaluation: bots stop this long after hitting the car."""
 
 
 @dataclass(frozen=True)
@@ -69,6 +71,12 @@ class RaceRules:
     simulated seconds is judged immobilized. DeepRacer has no such rule; its narrow tracks do
     not let a car circle for long, but a wide one does, and such episodes teach nothing.
     ``None`` turns it off.
+    ``bot_pause_s``: how long the bot cars stop after one runs into the car from behind (the car
+    is not at fault; SimApp's ``PENALTY_SECONDS``). ``None`` is SimApp's default: 2 s when
+    resets are allowed (evaluation), 0 in training. Running into a bot from behind is a crash
+    like hitting a box and costs ``crash_penalty_s``.
+    ``mercy_resets``: after this many respawns in a row behind the same box, the car is put
+    past it instead (SimApp's optional mercy reset, 3 when enabled there); ``None`` is off.
     """
 
     laps: int = 1
@@ -81,6 +89,8 @@ class RaceRules:
     time_limit_s: float | None = None
     lap_time_limit_s: float | None = None
     stall_s: float | None = 10.0
+    bot_pause_s: float | None = None
+    mercy_resets: int | None = None
 
     def __post_init__(self) -> None:
         if self.laps < 1:
@@ -90,8 +100,18 @@ class RaceRules:
         for name in ("off_track_penalty_s", "crash_penalty_s", "immobilized_penalty_s"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} cannot be negative")
+        if self.bot_pause_s is not None and self.bot_pause_s < 0:
+            raise ValueError("bot_pause_s cannot be negative")
+        if self.mercy_resets is not None and self.mercy_resets < 1:
+            raise ValueError("mercy_resets must be at least 1 (or None for no mercy)")
         if self.max_steps < 1:
             raise ValueError("max_steps must be at least 1")
+
+    def bot_pause(self) -> float:
+        """Seconds the bots stop after running into the car from behind (see the class)."""
+        if self.bot_pause_s is not None:
+            return self.bot_pause_s
+        return EVALUATION_BOT_PAUSE_S if self.resets > 0 else 0.0
 
     def penalty_for(self, status: Status) -> float:
         if status is Status.OFF_TRACK:
@@ -317,10 +337,3 @@ class RaceTracker:
         lap.time_s = self.sim_time - self.lap_start_time
         lap.progress = self.progress
         return Judgement(status, not truncated, truncated, False, 0.0, False)
-
-    def unfinished_lap(self) -> LapRecord | None:
-        """The lap in progress when the episode ended without finishing it, if any."""
-        lap = self._lap
-        if lap is None or lap.status in (Status.IN_PROGRESS,) or lap in self.laps:
-            return None
-        return lap

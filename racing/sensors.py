@@ -2,8 +2,9 @@
 
 The track is flat, so a camera's view of the ground is a homography of the top-down ground
 texture: one ``cv2.warpPerspective`` per frame instead of rendering a 3-D scene. Rows above the
-horizon show a fixed backdrop. Objects (boxes, bot cars) will be drawn over the warped ground
-once race types with objects exist: :meth:`PinholeCamera.render` takes the list already.
+horizon show a fixed backdrop. Boxes and bot cars are drawn over the warped ground as shaded
+solid boxes (:mod:`racing.drawing`), nearer ones over farther ones; with no objects the frame
+costs exactly the warp.
 
 :class:`ReferenceCamera` renders the same view through PyBullet's ``getCameraImage``; it is far
 slower and exists to check the fast path and to measure it against.
@@ -14,6 +15,7 @@ from __future__ import annotations
 import math
 import os
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -21,6 +23,9 @@ import numpy as np
 import pybullet as pb
 
 from racing.car import Pose
+from racing.drawing import MAX_DRAW_DISTANCE_M, BoxSet, draw_boxes
+from racing.lidar import SENSOR_DISCRETIZED_LIDAR, SENSOR_LIDAR, SENSOR_SECTOR_LIDAR
+from racing.objects import KIND_BOT, RaceObject
 from racing.texture import GroundTexture, render_ground
 from racing.track import Track
 
@@ -38,11 +43,11 @@ STEREO_BASELINE_M = 0.06
 
 SENSOR_CAMERA = "FRONT_FACING_CAMERA"
 SENSOR_STEREO = "STEREO_CAMERAS"
-SENSOR_LIDAR = "LIDAR"
-SENSOR_SECTOR_LIDAR = "SECTOR_LIDAR"
 CAMERA_SENSORS = (SENSOR_CAMERA, SENSOR_STEREO)
-LIDAR_SENSORS = (SENSOR_LIDAR, SENSOR_SECTOR_LIDAR, "DISCRETIZED_SECTOR_LIDAR")
-SUPPORTED_SENSORS = (SENSOR_CAMERA, SENSOR_STEREO)
+LIDAR_SENSORS = (SENSOR_LIDAR, SENSOR_SECTOR_LIDAR, SENSOR_DISCRETIZED_LIDAR)
+SUPPORTED_SENSORS = CAMERA_SENSORS + LIDAR_SENSORS
+FRUSTUM_NEAR_M = 0.2
+"""DeepRacer's camera frustum starts this far in front of the lens (``object_in_camera``)."""
 
 
 class SensorError(ValueError):
@@ -50,20 +55,26 @@ class SensorError(ValueError):
 
 
 def validate_sensors(sensors: list[str] | tuple[str, ...]) -> tuple[str, ...]:
-    """Check a DeepRacer ``sensor`` list: exactly one camera, at most one LIDAR."""
+    """Check a DeepRacer ``sensor`` list and return it upper-cased, camera first.
+
+    DeepRacer's combinations: one camera (``FRONT_FACING_CAMERA`` or ``STEREO_CAMERAS``),
+    optionally with one LIDAR (``LIDAR``, ``SECTOR_LIDAR`` or ``DISCRETIZED_SECTOR_LIDAR``).
+    Raises :class:`SensorError` naming what is wrong with any other list.
+    """
     sensors = tuple(s.upper() for s in sensors)
     cameras = [s for s in sensors if s in CAMERA_SENSORS]
     lidars = [s for s in sensors if s in LIDAR_SENSORS]
-    unknown = [s for s in sensors if s not in CAMERA_SENSORS + LIDAR_SENSORS]
+    unknown = [s for s in sensors if s not in SUPPORTED_SENSORS]
     if unknown:
-        raise SensorError(f"unknown sensor {unknown[0]!r}; known: {CAMERA_SENSORS + LIDAR_SENSORS}")
+        raise SensorError(f"unknown sensor {unknown[0]!r}; known: {', '.join(SUPPORTED_SENSORS)}")
     if len(cameras) != 1:
-        raise SensorError("choose exactly one camera: FRONT_FACING_CAMERA or STEREO_CAMERAS")
+        raise SensorError(
+            "choose exactly one camera, FRONT_FACING_CAMERA or STEREO_CAMERAS "
+            f"(optionally with one LIDAR); got {list(sensors)}"
+        )
     if len(lidars) > 1:
-        raise SensorError("choose at most one LIDAR sensor")
-    if lidars:
-        raise SensorError(f"{lidars[0]} is not available yet; use a camera on its own")
-    return sensors
+        raise SensorError(f"choose at most one LIDAR sensor; got {', '.join(lidars)}")
+    return (cameras[0], *lidars)
 
 
 @dataclass(frozen=True)
@@ -149,8 +160,9 @@ class PinholeCamera:
         to_ground = np.array([[-cz, 0, pos[0]], [0, -cz, pos[1]], [0, 0, 1.0]])
         return self._world_to_tex @ to_ground @ rays @ self._shift
 
-    def render(self, pose: Pose, objects: tuple = ()) -> np.ndarray:
-        """The camera image at ``pose``: ``(H, W)`` uint8 for grayscale ground, else RGB."""
+    def render(self, pose: Pose, objects: Sequence[RaceObject] = ()) -> np.ndarray:
+        """The camera image at ``pose``: ``(H, W)`` uint8 for grayscale ground, else RGB,
+        with ``objects`` drawn over the ground."""
         frame = self._frame.copy()
         row0 = self.first_ground_row
         if row0 < self.mount.height_px:
@@ -163,7 +175,40 @@ class PinholeCamera:
                 borderMode=cv2.BORDER_CONSTANT,
                 borderValue=self._border,
             )
+        if objects:
+            self.draw(frame, pose, BoxSet.of(objects))
         return frame
+
+    def draw(self, frame: np.ndarray, pose: Pose, boxes: BoxSet) -> None:
+        """Paint ``boxes`` into this camera's ``frame`` seen from a car at ``pose``."""
+        pos, rot = camera_frame(pose, self.mount)
+        draw_boxes(frame, self.K, pos, rot, boxes)
+
+    def sees(self, pose: Pose, obj: RaceObject) -> bool:
+        """Whether ``obj`` is in this camera's frustum: its centre or a corner of its footprint
+        projects into the image at least :data:`FRUSTUM_NEAR_M` in front of the lens (the
+        test DeepRacer makes for ``object_in_camera``). Plain floats: five points."""
+        m = self.mount
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        cam_x = pose.x + c * m.forward - s * m.left
+        cam_y = pose.y + s * m.forward + c * m.left
+        pitch = math.radians(m.pitch_deg)
+        cp, sp = math.cos(pitch), math.sin(pitch)
+        fx, cx, fy, cy = self.K[0, 0], self.K[0, 2], self.K[1, 1], self.K[1, 2]
+        oc, os_ = math.cos(obj.heading), math.sin(obj.heading)
+        hl, hw = obj.length / 2, obj.width / 2
+        for a, b in ((0.0, 0.0), (hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):
+            dx = obj.x + oc * a - os_ * b - cam_x
+            dy = obj.y + os_ * a + oc * b - cam_y
+            dz = -m.height
+            depth = c * cp * dx + s * cp * dy - sp * dz
+            if depth < FRUSTUM_NEAR_M:
+                continue
+            u = fx * (s * dx - c * dy) / depth + cx
+            v = fy * (-sp * c * dx - sp * s * dy - cp * dz) / depth + cy
+            if 0 <= u <= m.width - 1 and 0 <= v <= m.height_px - 1:
+                return True
+        return False
 
     def project(self, pose: Pose, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World points ``(N, 3)`` to pixels ``(N, 2)`` and their depth in front of the lens."""
@@ -194,11 +239,37 @@ class CameraSensor:
         else:
             raise SensorError(f"{kind!r} is not a camera")
         self.shape = (CAMERA_HEIGHT, CAMERA_WIDTH, len(self.cameras))
+        self._drawn: tuple[Sequence[RaceObject], BoxSet | None] = ((), None)
+        """The last objects drawn (static boxes are the same tuple all episode), as a BoxSet."""
 
-    def observe(self, pose: Pose, objects: tuple = ()) -> np.ndarray:
-        if len(self.cameras) == 1:
-            return self.cameras[0].render(pose, objects)[..., None]
-        return np.stack([cam.render(pose, objects) for cam in self.cameras], axis=-1)
+    def observe(self, pose: Pose, objects: Sequence[RaceObject] = ()) -> np.ndarray:
+        """The observation ``(120, 160, C)`` uint8 at ``pose`` with ``objects`` in view."""
+        frames = [cam.render(pose) for cam in self.cameras]
+        if objects:
+            if objects is not self._drawn[0]:  # static boxes: the same tuple all episode
+                if any(o.kind == KIND_BOT for o in objects):
+                    objects = [o for o in objects if _maybe_in_view(pose, o)]  # moving: now
+                self._drawn = (objects, BoxSet.of(objects) if objects else None)
+            boxes = self._drawn[1]
+            if boxes is not None:
+                for cam, frame in zip(self.cameras, frames, strict=True):
+                    cam.draw(frame, pose, boxes)
+        if len(frames) == 1:
+            return frames[0][..., None]
+        return np.stack(frames, axis=-1)
+
+    def sees(self, pose: Pose, obj: RaceObject) -> bool:
+        """Whether any lens has ``obj`` in its frustum."""
+        return any(cam.sees(pose, obj) for cam in self.cameras)
+
+
+def _maybe_in_view(pose: Pose, obj: RaceObject) -> bool:
+    """False only for an object no front camera can see: behind the lenses or beyond the
+    drawing distance (a cheap first cut for objects that move every step)."""
+    dx, dy = obj.x - pose.x, obj.y - pose.y
+    radius = math.hypot(obj.length, obj.width, obj.height) / 2
+    ahead = dx * math.cos(pose.yaw) + dy * math.sin(pose.yaw)
+    return ahead > CAMERA_X_M - radius and math.hypot(dx, dy) < MAX_DRAW_DISTANCE_M + radius
 
 
 _ground_cache: dict[tuple[int, float, bool], GroundTexture] = {}

@@ -14,18 +14,25 @@ import numpy as np
 
 from racing.track import Track
 
-# Colours (RGB). The camera sees them in grayscale through DeepRacer's RGB -> Y conversion.
-FLOOR_RGB = (58, 84, 56)
-ROAD_RGB = (52, 54, 60)
-BORDER_RGB = (236, 236, 236)
-CENTRE_RGB = (240, 184, 40)
-START_RGB = (236, 236, 236)
+# Colours (RGB) of DeepRacer's simulated track (Gazebo), measured on AWS camera frames: grass,
+# blue-black asphalt, off-white borders, an orange centre line. The camera sees them in grayscale
+# through DeepRacer's RGB -> Y conversion (about 133, 53, 208 and 139 of 255).
+FLOOR_RGB = (106, 150, 116)
+ROAD_RGB = (41, 55, 72)
+BORDER_RGB = (207, 209, 204)
+CENTRE_RGB = (209, 128, 8)
+START_RGB = (207, 209, 204)
 
-BORDER_LINE_M = 0.05
-"""Width of the white border lines, metres (painted inside the road, as on DeepRacer tracks)."""
-CENTRE_LINE_M = 0.025
-CENTRE_DASH_M = 0.15
-"""Length of each dash of the centre line (and of the gap between dashes), metres."""
+BORDER_LINE_M = 0.076
+"""Width of the white border lines, metres, painted inside the road. On DeepRacer's frames a
+border is 0.123 of the asphalt between the borders at the same image row: 3 inches of a
+0.762 m track (DeepRacer's track_width, borders included)."""
+CENTRE_LINE_M = 0.03
+"""Width of the centre line, metres (0.05 of the asphalt on DeepRacer's frames)."""
+CENTRE_DASH_M = 0.05
+"""Length of each dash of the centre line (and of the gap between dashes), metres. On
+DeepRacer's frames a dash covers 0.42-0.48 of its period, and the period is 4-10 cm on the
+ground (it depends on the simulator's lens, which the frames alone do not settle)."""
 MARGIN_M = 1.0
 """Floor shown around the track's bounding box, metres."""
 

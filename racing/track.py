@@ -296,6 +296,26 @@ class Track:
         seg, frac, d2 = self._nearest(x, y, None)
         return self._location(seg, frac, d2, x, y)
 
+    def locate_all(self, xs: np.ndarray, ys: np.ndarray) -> list[Location]:
+        """:meth:`locate` (full search) for many points at once, vectorised over the points."""
+        xs = np.asarray(xs, dtype=np.float64)[:, None]
+        ys = np.asarray(ys, dtype=np.float64)[:, None]
+        a, v = self._seg_start, self._seg_vec
+        wx = xs - a[:, 0]
+        wy = ys - a[:, 1]
+        t = np.clip((wx * v[:, 0] + wy * v[:, 1]) / self._seg_len2, 0.0, 1.0)
+        dx = wx - t * v[:, 0]
+        dy = wy - t * v[:, 1]
+        d2 = dx * dx + dy * dy
+        best = np.argmin(d2, axis=1)
+        rows = np.arange(len(best))
+        return [
+            self._location(
+                int(k), float(t[i, k]), float(d2[i, k]), float(xs[i, 0]), float(ys[i, 0])
+            )
+            for i, k in zip(rows, best, strict=True)
+        ]
+
     def _nearest(self, x: float, y: float, idx: np.ndarray | None) -> tuple[int, float, float]:
         a = self._seg_start if idx is None else self._seg_start[idx]
         v = self._seg_vec if idx is None else self._seg_vec[idx]
@@ -362,6 +382,26 @@ class Track:
             x -= offset * math.sin(h)
             y += offset * math.cos(h)
         return float(x), float(y)
+
+    def stations(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Segment indices and fractions along them for distances ``s`` (metres), vectorised;
+        a loop wraps ``s``, an open route clamps it."""
+        s = np.mod(s, self.length) if self.closed else np.clip(s, 0.0, self.length)
+        seg = np.clip(
+            np.searchsorted(self.cumulative, s, side="right") - 1, 0, self.num_segments - 1
+        )
+        frac = (s - self.cumulative[seg]) / np.maximum(self._seg_len[seg], 1e-12)
+        return seg, frac
+
+    def points_at(
+        self, seg: np.ndarray, frac: np.ndarray, offsets: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`point_at` for many places at once, given by :meth:`stations`, shifted
+        ``offsets`` metres left: ``x``, ``y`` (metres) and the centre line's heading (radians)."""
+        heading = self._seg_heading[seg]
+        x = self._seg_start[seg, 0] + frac * self._seg_vec[seg, 0] - offsets * np.sin(heading)
+        y = self._seg_start[seg, 1] + frac * self._seg_vec[seg, 1] + offsets * np.cos(heading)
+        return x, y, heading
 
     @cached_property
     def curvature(self) -> np.ndarray:

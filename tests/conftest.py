@@ -24,6 +24,9 @@ from console.launcher import EmbeddedRedis, Supervisor
 from console.redisconf import celery_settings
 from console.redisconf import channel_layers as channel_layers_setting
 
+# The real servers (Celery worker, daphne, moto S3, Chromium) for every test package.
+pytest_plugins = ["tests.support"]
+
 REDIS_PREFIX = f"racecraft-test-{uuid.uuid4().hex[:10]}:"
 
 

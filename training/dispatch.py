@@ -12,6 +12,7 @@ TRAIN_MODEL = "training.tasks.train_model"
 EVALUATE_MODEL = "training.tasks.evaluate_model"
 SIMULATE_ROLLOUT = "training.tasks.simulate_rollout"
 REPLAY_REWARD = "training.tasks.replay_reward"
+VALIDATE_REWARD = "training.tasks.validate_reward"
 
 
 def send(task_name: str, *args: object, **kwargs: object) -> str:

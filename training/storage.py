@@ -11,7 +11,7 @@ checked the same way on both backends (:func:`validate_key`): no absolute paths,
 leave the store. Prefixes passed to :meth:`ObjectStore.list` and
 :meth:`ObjectStore.delete_prefix` are folders: ``"42"`` means everything under ``"42/"``.
 
-The per-model layout (DeepRacer-for-Cloud names) is in :class:`ModelKeys`.
+The per-model layout (DeepRacer-for-Cloud names) is ``training.interchange.layout.ModelKeys``.
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ MAX_KEY_BYTES = 1024  # S3's limit on an object key
 OCTET_STREAM = "application/octet-stream"
 _TMP_DIR = ".racecraft-tmp"  # LocalStore's staging folder for atomic writes (never a key)
 _BUCKET_RE = re.compile(r"^[a-z0-9][a-z0-9.-]{1,61}[a-z0-9]$")
-_MODEL_ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 
 class StoreError(Exception):
@@ -81,7 +80,7 @@ class ObjectStore(ABC):
     """What the rest of Racecraft may do with stored objects. Keys: see :func:`validate_key`.
 
     Every method raises :class:`StoreError` on failure; reads of a missing key raise
-    :class:`ObjectNotFound`. Deleting a missing key is not an error.
+    :class:`ObjectNotFound`. Deleting a folder that holds nothing is not an error.
     """
 
     @abstractmethod
@@ -93,28 +92,12 @@ class ObjectStore(ABC):
         """The whole object at ``key``."""
 
     @abstractmethod
-    def put_file(self, key: str, path: str | os.PathLike, content_type: str = OCTET_STREAM) -> None:
-        """Upload a local file (large objects: videos, archives) without reading it whole."""
-
-    @abstractmethod
-    def get_file(self, key: str, path: str | os.PathLike) -> None:
-        """Download the object at ``key`` to the local file ``path`` (replaced atomically)."""
-
-    @abstractmethod
     def exists(self, key: str) -> bool:
         """Whether an object is stored at ``key``."""
 
     @abstractmethod
-    def size(self, key: str) -> int:
-        """The object's size in bytes."""
-
-    @abstractmethod
     def list(self, prefix: str = "") -> list[str]:
         """Every key under the folder ``prefix`` (recursively), sorted; ``""`` lists all."""
-
-    @abstractmethod
-    def delete(self, key: str) -> None:
-        """Remove the object at ``key`` if there is one."""
 
     @abstractmethod
     def delete_prefix(self, prefix: str) -> int:
@@ -122,14 +105,6 @@ class ObjectStore(ABC):
 
         Returns how many objects were removed.
         """
-
-    def copy_prefix(self, source: str, target: str) -> int:
-        """Copy every object under folder ``source`` to the same relative key under ``target``."""
-        src, dst = _folder(source, allow_root=False), _folder(target, allow_root=False)
-        keys = self.list(src)
-        for key in keys:
-            self.put_bytes(dst + key[len(src) :], self.get_bytes(key))
-        return len(keys)
 
 
 class LocalStore(ObjectStore):
@@ -160,7 +135,7 @@ class LocalStore(ObjectStore):
         except StoreError:
             raise
         except (FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
-            if action in ("read", "stat"):
+            if action == "read":
                 raise ObjectNotFound(key) from exc
             raise StoreError(f"cannot {action} {key!r}: {exc.strerror or exc}") from exc
         except OSError as exc:
@@ -190,36 +165,8 @@ class LocalStore(ObjectStore):
         with self._errors("read", key):
             return path.read_bytes()
 
-    def put_file(self, key: str, path: str | os.PathLike, content_type: str = OCTET_STREAM) -> None:
-        target = self._path(key)
-        with self._errors("write", key), open(path, "rb") as source:
-            self._write_atomic(target, lambda handle: shutil.copyfileobj(source, handle))
-
-    def get_file(self, key: str, path: str | os.PathLike) -> None:
-        source = self._path(key)
-        with self._errors("read", key):
-            if not source.is_file():
-                raise ObjectNotFound(key)
-            target = Path(path)
-            fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.")
-            os.close(fd)
-            try:
-                shutil.copyfile(source, tmp)
-                os.replace(tmp, target)
-            except BaseException:
-                with suppress(OSError):
-                    os.unlink(tmp)
-                raise
-
     def exists(self, key: str) -> bool:
         return self._path(key).is_file()
-
-    def size(self, key: str) -> int:
-        path = self._path(key)
-        with self._errors("stat", key):
-            if not path.is_file():
-                raise ObjectNotFound(key)
-            return path.stat().st_size
 
     def list(self, prefix: str = "") -> list[str]:
         folder = _folder(prefix, allow_root=True)
@@ -233,15 +180,6 @@ class LocalStore(ObjectStore):
             rel = Path(dirpath).relative_to(self.root).as_posix()
             keys += [name if rel == "." else f"{rel}/{name}" for name in filenames]
         return sorted(keys)
-
-    def delete(self, key: str) -> None:
-        path = self._path(key)
-        with self._errors("delete", key):
-            try:
-                path.unlink()
-            except FileNotFoundError:
-                return
-            self._prune(path.parent)
 
     def delete_prefix(self, prefix: str) -> int:
         folder = _folder(prefix, allow_root=False)
@@ -366,38 +304,20 @@ class MinioStore(ObjectStore):
                 response.close()
                 response.release_conn()
 
-    def put_file(self, key: str, path: str | os.PathLike, content_type: str = OCTET_STREAM) -> None:
-        validate_key(key)
-        with self._errors("write", key):
-            self.client.fput_object(self.bucket, key, os.fspath(path), content_type=content_type)
-
-    def get_file(self, key: str, path: str | os.PathLike) -> None:
-        validate_key(key)
-        with self._errors("read", key):
-            self.client.fget_object(self.bucket, key, os.fspath(path))
-
     def exists(self, key: str) -> bool:
+        validate_key(key)
         try:
-            self.size(key)
+            with self._errors("stat", key):
+                self.client.stat_object(self.bucket, key)
         except ObjectNotFound:
             return False
         return True
-
-    def size(self, key: str) -> int:
-        validate_key(key)
-        with self._errors("stat", key):
-            return int(self.client.stat_object(self.bucket, key).size)
 
     def list(self, prefix: str = "") -> list[str]:
         folder = _folder(prefix, allow_root=True)
         with self._errors("list", folder):
             objects = self.client.list_objects(self.bucket, prefix=folder or None, recursive=True)
             return sorted(obj.object_name for obj in objects if not obj.is_dir)
-
-    def delete(self, key: str) -> None:
-        validate_key(key)
-        with self._errors("delete", key):
-            self.client.remove_object(self.bucket, key)
 
     def delete_prefix(self, prefix: str) -> int:
         from minio.deleteobjects import DeleteObject
@@ -414,12 +334,21 @@ class MinioStore(ObjectStore):
 
 
 def check_bucket_name(bucket: str) -> str:
-    """Return ``bucket`` if it starts with ``"deepracer"`` and is a valid S3 bucket name."""
+    """Return ``bucket`` if DeepRacer tools can use it, else raise :class:`StoreError`.
+
+    The name must start with ``"deepracer"`` (DeepRacer tools only read such buckets) and be a
+    valid S3 name: 3-63 lowercase letters, digits, dots or hyphens, a letter or digit at both
+    ends, no ``..``. The settings check ``MINIO_BUCKET`` with it too.
+    """
     if not isinstance(bucket, str) or not bucket.startswith(BUCKET_PREFIX):
-        raise StoreError(f"bucket {bucket!r} must start with {BUCKET_PREFIX!r}")
+        raise StoreError(
+            f"bucket {bucket!r} must start with {BUCKET_PREFIX!r} "
+            f"(DeepRacer tools only read buckets named {BUCKET_PREFIX}*)"
+        )
     if not _BUCKET_RE.match(bucket) or ".." in bucket:
         raise StoreError(
-            f"bucket {bucket!r} is not a valid S3 name (3-63 lowercase letters, digits, . or -)"
+            f"bucket {bucket!r} is not a valid bucket name "
+            "(3-63 lowercase letters, digits, dots or hyphens)"
         )
     return bucket
 

@@ -17,6 +17,7 @@ from django.db import close_old_connections
 from training import dispatch, services
 from training.rollout.remote import serve_rollout
 from training.services.analysis import replay_run
+from training.services.rewards import reward_validation_run
 from training.worker.evaluation import run_evaluation_job
 from training.worker.training import run_training_job
 
@@ -41,6 +42,13 @@ def simulate_rollout(**kwargs) -> str:
 def replay_reward(model_id: int, iteration: int, episode: int, source: str) -> dict:
     """A reward replay on a recorded episode (the user's code runs in the sandbox here)."""
     return replay_run(model_id, iteration, episode, source)
+
+
+@shared_task(name=dispatch.VALIDATE_REWARD, acks_late=False, time_limit=600)
+def validate_reward(*, source: str, track_id: str, direction: str) -> dict:
+    """Validate a user's reward function here, in a worker, never in the web process
+    (queue ``default``); the sandbox's own deadlines end it well before ``time_limit``."""
+    return reward_validation_run(source=source, track_id=track_id, direction=direction)
 
 
 @shared_task(name="training.tasks.reap_orphans")

@@ -5,8 +5,10 @@ from __future__ import annotations
 from django import template
 
 from racing.rules import STATUS_LABELS, Status
+from training.formatting import format_lap_s
 
 register = template.Library()
+register.filter("laptime", format_lap_s)  # seconds (a lap's time_s) as MM:SS.mmm
 
 BADGES = {
     "READY": "ok", "COMPLETED": "ok",
@@ -20,16 +22,6 @@ BADGES = {
 def badge(status: str) -> str:
     """CSS modifier of a status badge: ok, busy, wait, bad or off."""
     return BADGES.get(str(status), "off")
-
-
-@register.filter
-def laptime(seconds: float | None) -> str:
-    """Seconds as DeepRacer shows a lap: MM:SS.mmm."""
-    if seconds is None:
-        return "—"
-    ms = round(float(seconds) * 1000)
-    minutes, ms = divmod(ms, 60_000)
-    return f"{minutes:02d}:{ms // 1000:02d}.{ms % 1000:03d}"
 
 
 @register.filter

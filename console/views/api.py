@@ -6,10 +6,12 @@ import json
 
 from django.contrib.auth.decorators import login_required
 from django.http import HttpRequest, JsonResponse
-from django.views.decorators.http import require_POST
+from django.urls import reverse
+from django.views.decorators.http import require_http_methods
 
 from training import services
-from training.sandbox import MAX_SOURCE_CHARS
+from training.sandbox import MAX_SOURCE_CHARS, check_source
+from training.services import rewards
 
 MAX_BODY_BYTES = MAX_SOURCE_CHARS * 4 + 4096
 
@@ -21,13 +23,25 @@ def _error(message: str, status: int = 400, field: str | None = None) -> JsonRes
 
 
 @login_required
-@require_POST
+@require_http_methods(["GET", "POST"])
 def reward_validate(request: HttpRequest) -> JsonResponse:
-    """POST ``{source, track, direction}`` (JSON or form data) → ``{ok, errors, rewards}``.
+    """POST ``{source, track, direction}`` (JSON or form data) starts a validation; GET
+    ``?id=<id>`` polls it. The web process runs none of the user's code: static errors
+    (found by parsing alone) come back at once with ``status: done``; otherwise the answer is
+    202 ``{status: queued, id, poll}`` and polling gives ``{status: queued|running}`` until
+    ``{status: done, ok, errors, rewards}``.
 
     Errors are DeepRacer's: ``{type, message, line, column, lineNumber}``; a request we cannot
-    read answers 400 with one REQUEST_ERROR.
+    read, or one over the per-user limits, answers 400 (429 for limits) with one REQUEST_ERROR.
     """
+    if request.method == "GET":
+        try:
+            status = rewards.reward_validation_status(
+                user_id=request.user.pk, task_id=request.GET.get("id", "")
+            )
+        except rewards.ValidationNotFound:
+            return _error("No such validation.", status=404)
+        return JsonResponse(dict(status))
     if len(request.body) > MAX_BODY_BYTES:
         return _error("The reward function is too long.", status=413, field="source")
     if request.content_type == "application/json":
@@ -47,11 +61,18 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
         return _error("Choose a track to validate on.", field="track")
     if not isinstance(direction, str):
         return _error("'direction' must be native, ccw or cw.", field="direction")
+    static = check_source(source) if source.strip() else []
     try:
-        result = services.check_reward(source, track, direction)
-    except services.RewardRejected as exc:
-        return JsonResponse({"ok": False, "errors": exc.errors})
+        if static:  # parsing only: answered here, nothing queued
+            services.check_track(track, direction)
+            errors = [e.to_dict() for e in static]
+            return JsonResponse({"status": "done", "ok": False, "errors": errors, "rewards": {}})
+        task_id = rewards.reward_validation_start(
+            user_id=request.user.pk, source=source, track_id=track, direction=direction
+        )
     except services.ServiceError as exc:
         field = {"track_id": "track", "reward_function": "source"}.get(exc.field or "", exc.field)
-        return _error(exc.sentence, field=field)
-    return JsonResponse({"ok": True, "errors": [], "rewards": result["rewards"]})
+        limited = isinstance(exc, rewards.ValidationLimited)
+        return _error(exc.sentence, status=429 if limited else 400, field=field)
+    poll = f"{reverse('reward-validate')}?id={task_id}"
+    return JsonResponse({"status": "queued", "id": task_id, "poll": poll}, status=202)

@@ -15,10 +15,12 @@ from training.http import media_response
 from training.models import RacingModel
 from training.services import ServiceError, downloads
 
-ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str]] = {
-    "car": (downloads.car_model_archive, "{name}-car.tar.gz"),
-    "virtual": (downloads.virtual_model_archive, "{name}-virtualmodel.tar.gz"),
-    "logs": (downloads.logs_archive, "{name}-logs.tar.gz"),
+GZIP, ONNX = "application/gzip", "application/octet-stream"
+ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str, str]] = {
+    "car": (downloads.car_model_archive, "{name}-car.tar.gz", GZIP),
+    "onnx": (downloads.onnx_policy, "{name}-policy.onnx", ONNX),
+    "virtual": (downloads.virtual_model_archive, "{name}-virtualmodel.tar.gz", GZIP),
+    "logs": (downloads.logs_archive, "{name}-logs.tar.gz", GZIP),
 }
 
 
@@ -28,7 +30,7 @@ def model_download(request: HttpRequest, model_id: int, kind: str) -> HttpRespon
     model = owned_model(request, model_id)
     if kind not in ARCHIVES:
         raise Http404("No such download")
-    build, filename = ARCHIVES[kind]
+    build, filename, content_type = ARCHIVES[kind]
     try:
         data = build(model)
     except ServiceError as exc:
@@ -36,7 +38,7 @@ def model_download(request: HttpRequest, model_id: int, kind: str) -> HttpRespon
         if request.GET.get("back") == "list":
             return redirect("models")
         return redirect("model-detail", model_id=model.pk)
-    response = HttpResponse(data, content_type="application/gzip")
+    response = HttpResponse(data, content_type=content_type)
     response["Content-Disposition"] = f'attachment; filename="{filename.format(name=model.name)}"'
     return response
 

@@ -4,18 +4,11 @@ from __future__ import annotations
 
 from django import template
 
-from leaderboard.ranking import format_ms
+from training.formatting import format_lap_ms, format_lap_s
 
 register = template.Library()
 
-
-@register.filter
-def laptime(ms: int | None) -> str:
-    """Milliseconds as ``MM:SS.mmm``."""
-    return format_ms(ms)
-
-
-@register.filter
-def laptime_s(seconds: float | None) -> str:
-    """Seconds (a lap table's ``time_s``) as ``MM:SS.mmm``."""
-    return format_ms(None if seconds is None else round(float(seconds) * 1000))
+# ``laptime`` takes milliseconds (a submission's scores); ``laptime_s`` seconds (a lap table's
+# ``time_s``), like the console's ``laptime``.
+register.filter("laptime", format_lap_ms)
+register.filter("laptime_s", format_lap_s)

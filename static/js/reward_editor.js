@@ -84,7 +84,16 @@
             direction: direction ? direction.value : "native",
           }),
         });
-        const data = await response.json();
+        let data = await response.json();
+        // The validation runs in a worker: poll until it is done (two minutes at most).
+        const poll = data.poll;
+        const stop = Date.now() + 120000;
+        while (data.status === "queued" || data.status === "running") {
+          validate.textContent = data.status === "running" ? "Running…" : "Queued…";
+          if (Date.now() > stop) throw new Error("no answer in two minutes");
+          await new Promise((done) => setTimeout(done, 500));
+          data = await (await fetch(poll)).json();
+        }
         if (data.ok) showOk(data.rewards);
         else showErrors(data.errors);
       } catch (err) {

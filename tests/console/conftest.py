@@ -15,12 +15,6 @@ ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-30, 0, 30)]
 
 
 @pytest.fixture
-def store_dir(tmp_path, settings):
-    settings.STORE_DIR = tmp_path / "store"
-    return settings.STORE_DIR
-
-
-@pytest.fixture
 def alice(db):
     return get_user_model().objects.create_user("alice", password=PASSWORD)
 

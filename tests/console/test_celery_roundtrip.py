@@ -3,47 +3,37 @@
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 import uuid
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
 from console.celery import QUEUE_DEFAULT, QUEUES, TASK_ROUTES
 from console.celery import app as celery_app
 from console.tasks import ping
-
-REPO = Path(__file__).resolve().parents[2]
+from tests.support import ChildProcess, celery_worker_process
 
 
 @pytest.fixture(scope="module")
-def celery_worker(redis_env: dict[str, str]) -> Iterator[subprocess.Popen[bytes]]:
-    """A worker on the default queue, on the tests' Redis and key prefix."""
-    env = {**os.environ, **redis_env}
-    worker = subprocess.Popen(
-        [sys.executable, "-m", "celery", "-A", "console", "worker", "--loglevel", "WARNING",
-         "-Q", QUEUE_DEFAULT, "--pool", "solo", "--without-gossip", "--without-mingle",
-         "--hostname", f"test-{uuid.uuid4().hex[:8]}@%h"],
-        cwd=REPO,
-        env=env,
-    )  # fmt: skip
-    yield worker
-    worker.terminate()
-    try:
-        worker.wait(30)
-    except subprocess.TimeoutExpired:
-        worker.kill()
-        worker.wait()
+def celery_worker(
+    redis_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[ChildProcess]:
+    """A worker on the default queue only, on the tests' Redis and key prefix."""
+    with celery_worker_process(
+        queues=[QUEUE_DEFAULT],
+        env={**os.environ, **redis_env},
+        log_path=tmp_path_factory.mktemp("worker") / "worker.log",
+        pool="solo",
+    ) as worker:
+        yield worker
 
 
-def test_ping_round_trip_through_a_worker(celery_worker: subprocess.Popen[bytes]) -> None:
+def test_ping_round_trip_through_a_worker(celery_worker: ChildProcess) -> None:
     message = f"hello-{uuid.uuid4().hex}"
     result = ping.delay(message)
     assert result.get(timeout=60) == message
     assert result.successful()
-    assert celery_worker.poll() is None
+    assert celery_worker.popen.poll() is None
 
 
 def test_tasks_route_to_the_four_queues() -> None:

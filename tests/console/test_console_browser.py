@@ -6,25 +6,16 @@ subprocess on the test database; screenshots go to test-artifacts/browser/."""
 from __future__ import annotations
 
 import io
-import os
-import socket
-import subprocess
-import sys
 import tarfile
-import time
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from tests.support import database_url, free_port
+from tests.support import ChildProcess
 
 ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = ROOT / "test-artifacts" / "browser"
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
 BROKEN = "def reward_function(params):\n    speed = params['speed']\n    return speed +\n"
 FIXED = (
     "def reward_function(params):\n"
@@ -38,93 +29,30 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.django_db(trans
 
 
 @pytest.fixture
-def child_env(tmp_path, redis_env, settings) -> dict[str, str]:
-    settings.STORE_DIR = tmp_path / "store"
-    return {**os.environ, **redis_env, "DATABASE_URL": database_url(),
-            "STORE_DIR": str(settings.STORE_DIR), "DEBUG": "1",
-            "RACECRAFT_TRACKS_DIR": str(settings.RACECRAFT_TRACKS_DIR),
-            "DJANGO_SETTINGS_MODULE": "console.settings"}  # fmt: skip
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    proc.terminate()
-    try:
-        proc.wait(timeout=30)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-
-
-@pytest.fixture
-def worker(child_env, tmp_path) -> Iterator[Path]:
-    log_path = tmp_path / "worker.log"
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "celery", "-A", "console", "worker", "-Q",
-             "training,evaluation,default", "-c", "1", "-n", f"browser-{uuid.uuid4().hex[:8]}@%h",
-             "--without-gossip", "--without-mingle", "-l", "INFO"],
-            cwd=ROOT, env=child_env, stdout=log, stderr=subprocess.STDOUT,
-        )  # fmt: skip
-        try:
-            from console.celery import app
-
-            deadline = time.monotonic() + 60
-            while not app.control.ping(timeout=1.0):
-                assert proc.poll() is None, log_path.read_text()
-                assert time.monotonic() < deadline, "the Celery worker did not answer"
-            yield log_path
-        finally:
-            _stop(proc)
-
-
-@pytest.fixture
-def web(child_env, tmp_path) -> Iterator[str]:
+def web(daphne: ChildProcess) -> Iterator[str]:
+    """The console's base URL, with the CodeMirror bundle built; daphne's log is kept."""
     from django.core.management import call_command
 
     call_command("build_assets")  # the CodeMirror bundle (npm ci + esbuild when missing)
-    port = free_port()
-    log_path = tmp_path / "daphne.log"
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "daphne", "-b", "127.0.0.1", "-p", str(port),
-             "console.asgi:application"],
-            cwd=ROOT, env=child_env, stdout=log, stderr=subprocess.STDOUT,
-        )  # fmt: skip
-        try:
-            deadline = time.monotonic() + 60
-            while True:
-                assert proc.poll() is None, log_path.read_text()
-                assert time.monotonic() < deadline, "daphne did not start"
-                with socket.socket() as s:
-                    if s.connect_ex(("127.0.0.1", port)) == 0:
-                        break
-                time.sleep(0.2)
-            yield f"http://127.0.0.1:{port}"
-        finally:
-            _stop(proc)
-            (ARTIFACTS / "daphne.log").write_text(log_path.read_text())
+    try:
+        yield daphne.url
+    finally:
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        (ARTIFACTS / "daphne.log").write_text(daphne.log())
 
 
 @pytest.fixture
-def page(web):
-    from playwright.sync_api import sync_playwright
-
-    if not Path(CHROMIUM).exists():
-        pytest.skip("Debian's chromium is not installed (apt-get install -y chromium)")
+def page(browser, web):
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        context = browser.new_context(
-            viewport={"width": 1360, "height": 900}, accept_downloads=True
-        )
-        context.set_default_timeout(30_000)
-        page = context.new_page()
-        page.errors = []
-        page.on("pageerror", lambda e: page.errors.append(str(e)))
-        try:
-            yield page
-        finally:
-            page.screenshot(path=str(ARTIFACTS / "last.png"), full_page=True)
-            browser.close()
+    context = browser.new_context(viewport={"width": 1360, "height": 900}, accept_downloads=True)
+    context.set_default_timeout(30_000)
+    page = context.new_page()
+    page.errors = []
+    page.on("pageerror", lambda e: page.errors.append(str(e)))
+    try:
+        yield page
+    finally:
+        page.screenshot(path=str(ARTIFACTS / "last.png"), full_page=True)
 
 
 def shot(page, name: str, selector: str | None = None) -> None:
@@ -141,10 +69,10 @@ def set_editor(page, source: str) -> None:
     page.keyboard.insert_text(source)
 
 
-def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, web, worker):
+def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, web, celery_worker):
     from playwright.sync_api import expect
 
-    log = worker
+    log = celery_worker.log_path
     page.goto(f"{web}/accounts/signup/")
     page.fill("#id_username", "racer")
     page.fill("#id_password1", "a-long-pass-phrase-77")
@@ -228,7 +156,7 @@ def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, we
     download = info.value
     assert download.suggested_filename == "oval-racer-car.tar.gz"
     with tarfile.open(fileobj=io.BytesIO(Path(download.path()).read_bytes())) as tar:
-        assert {"model.onnx", "model_metadata.json"} <= set(tar.getnames())
+        assert {"agent/model.pb", "model_metadata.json"} <= set(tar.getnames())
 
     # ---- clone, then delete the clone
     page.click("#clone-link")

@@ -201,7 +201,7 @@ def test_downloads_need_a_checkpoint(alice_model, alice_client) -> None:
 def test_import_errors_are_clear(alice_client, store_dir) -> None:
     missing = alice_client.post("/models/import/", {"name": "imported"})
     assert missing.status_code == 400
-    assert "Choose a virtual-model archive to upload." in missing.content.decode()
+    assert "Choose a model archive to upload." in missing.content.decode()
     from django.core.files.uploadedfile import SimpleUploadedFile
 
     junk = SimpleUploadedFile("model.tar.gz", b"not an archive at all", "application/gzip")

@@ -11,12 +11,7 @@ evaluation itself is covered by tests/training.
 
 from __future__ import annotations
 
-import os
-import socket
-import subprocess
-import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -26,67 +21,16 @@ from django.test import Client
 from league_helpers import finish_evaluation, lap, make_model, make_user
 
 from leaderboard.models import Event, Submission
-from tests.support import database_url, free_port
+from tests.support import ChildProcess
 
 ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = ROOT / "test-artifacts"
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
 
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.slow,
     pytest.mark.django_db(transaction=True),
-    pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="apt-get install chromium"),
 ]
-
-
-@pytest.fixture
-def server(redis_env, tmp_path, settings, monkeypatch):
-    """daphne serving console.asgi on a free port, on the test database and Redis."""
-    # Playwright's sync API keeps an event loop in this thread; the ORM calls of the test
-    # itself are still plain synchronous code.
-    monkeypatch.setenv("DJANGO_ALLOW_ASYNC_UNSAFE", "true")
-    port = free_port()
-    env = {**os.environ, **redis_env, "DATABASE_URL": database_url(), "DEBUG": "1",
-           "STORE_DIR": str(tmp_path / "store"), "DJANGO_SETTINGS_MODULE": "console.settings",
-           "RACECRAFT_TRACKS_DIR": str(settings.RACECRAFT_TRACKS_DIR)}  # fmt: skip
-    log_path = tmp_path / "daphne.log"
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "daphne", "-b", "127.0.0.1", "-p", str(port),
-             "console.asgi:application"],
-            cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
-        )  # fmt: skip
-        try:
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                assert proc.poll() is None, log_path.read_text()
-                try:
-                    socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
-                    break
-                except OSError:
-                    time.sleep(0.2)
-            else:
-                pytest.fail("daphne did not start\n" + log_path.read_text())
-            yield f"http://127.0.0.1:{port}"
-        finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-
-
-@pytest.fixture
-def browser():
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as pw:
-        chromium = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        yield chromium
-        chromium.close()
 
 
 def signed_in(browser, base_url: str, user):
@@ -140,7 +84,10 @@ def ranked_aliases(page) -> list[str]:
     )
 
 
-def test_results_appear_live_in_rank_order_and_private_races_need_the_link(server, browser):
+def test_results_appear_live_in_rank_order_and_private_races_need_the_link(
+    daphne: ChildProcess, browser
+):
+    server = daphne.url
     root = get_user_model().objects.create_superuser("root", "root@example.com", "pw-root-123")
     alice = make_user("alice", alias="Alice-R")
     bob = make_user("bob", alias="BobRacer")

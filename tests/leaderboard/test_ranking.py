@@ -14,7 +14,6 @@ from leaderboard.ranking import (
     Lap,
     Rules,
     format_gap,
-    format_ms,
     leaderboard,
     score_laps,
 )
@@ -125,15 +124,6 @@ BOARDS = [
 def test_leaderboard(entries, expected) -> None:
     rows = leaderboard(entries)
     assert [(r.rank, r.entry.submission_id, r.gap_ms) for r in rows] == expected
-
-
-@pytest.mark.parametrize(
-    ("ms", "text"),
-    [(None, "—"), (0, "00:00.000"), (9876, "00:09.876"), (61005, "01:01.005"),
-     (3_600_000, "60:00.000")],
-)  # fmt: skip
-def test_format_ms(ms, text) -> None:
-    assert format_ms(ms) == text
 
 
 @pytest.mark.parametrize(

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
+from shared_tracks import SHARED_TRACKS
 
 from racing.track import Track
-
-SHARED_TRACKS = Path(__file__).resolve().parents[2].parent / "shared" / "tracks"
 
 
 def shared_track(name: str) -> Track:

@@ -78,5 +78,11 @@ def test_sensor_combinations():
         validate_sensors([])
     with pytest.raises(SensorError, match="unknown sensor"):
         validate_sensors(["RADAR"])
-    with pytest.raises(SensorError, match="not available yet"):
-        validate_sensors(["FRONT_FACING_CAMERA", "LIDAR"])
+    # DeepRacer's combinations: a camera, optionally with one LIDAR (camera first).
+    assert validate_sensors(["LIDAR", "STEREO_CAMERAS"]) == ("STEREO_CAMERAS", "LIDAR")
+    for lidar in ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR"):
+        assert validate_sensors(["FRONT_FACING_CAMERA", lidar]) == ("FRONT_FACING_CAMERA", lidar)
+    with pytest.raises(SensorError, match="exactly one camera"):
+        validate_sensors(["LIDAR"])
+    with pytest.raises(SensorError, match="at most one LIDAR"):
+        validate_sensors(["FRONT_FACING_CAMERA", "LIDAR", "SECTOR_LIDAR"])

@@ -26,6 +26,11 @@ CONTINUOUS = {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, 
         {"action_space": CONTINUOUS},
         {"sensors": ["STEREO_CAMERAS"], "render_mode": "rgb_array"},
         {"direction": "cw", "alternate_direction": True},
+        {  # the race as the training side sends it: a plain dict
+            "race": {"race_type": "HEAD_TO_BOT", "number_of_bots": 3, "bot_lane_change": True},
+            "sensors": ["STEREO_CAMERAS", "SECTOR_LIDAR"],
+            "render_mode": "rgb_array",
+        },
     ],
 )
 def test_gymnasium_env_checker_passes(reinvent, kwargs):

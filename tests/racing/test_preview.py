@@ -2,18 +2,16 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
+from shared_tracks import SHARED_TRACKS
 
 from racing.preview import ARROW_RGB, MARGIN_M, render_preview, render_preview_png
 from racing.track import Track
 from racing.tracks import TrackCatalog
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-SHARED_TRACKS = Path(__file__).resolve().parents[2].parent / "shared" / "tracks"
 
 
 @pytest.fixture(scope="module")

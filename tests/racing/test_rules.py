@@ -168,3 +168,11 @@ def test_a_car_that_gains_no_ground_is_immobilized():
             break
     assert out.status is Status.IMMOBILIZED and 30 <= i + 1 <= 35  # 2 s after its best
     assert tracker(stall_s=None)._stalled() is False
+
+
+def test_bots_pause_after_hitting_the_car_in_evaluation_only_by_default():
+    assert RaceRules().bot_pause() == 0.0  # SimApp's training default
+    assert RaceRules(resets=3).bot_pause() == 2.0  # its evaluation default
+    assert RaceRules(bot_pause_s=1.5).bot_pause() == 1.5
+    with pytest.raises(ValueError, match="bot_pause_s cannot be negative"):
+        RaceRules(bot_pause_s=-1.0)

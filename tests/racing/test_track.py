@@ -14,12 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from shapely.geometry import Point, Polygon
+from shared_tracks import SHARED_TRACKS
 
 from racing.track import MIN_DISTINCT_POINTS, Track, TrackError
 from racing.tracks import BUILTIN_DIR, MAX_TRACK_FILE_BYTES, import_track
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-SHARED_TRACKS = REPO_ROOT.parent / "shared" / "tracks"
 SHARED_FILES = sorted(SHARED_TRACKS.glob("*.npy")) if SHARED_TRACKS.is_dir() else []
 BUILTIN_IDS = ["racecraft_summit", "racecraft_oval", "racecraft_technical"]
 

@@ -7,12 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_tracks import SHARED_TRACKS
 
 from racing.track import Track, TrackError
 from racing.tracks import BUILTIN_DIR, TrackCatalog, UnknownTrackError, import_track
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-SHARED_TRACKS = REPO_ROOT.parent / "shared" / "tracks"
 OVAL_TRACK = SHARED_TRACKS / "Oval_track.npy"
 
 BUILTIN = {

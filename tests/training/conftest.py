@@ -23,9 +23,8 @@ class TinyModel:
     metadata: ModelMetadata
 
 
-@pytest.fixture(scope="session")
-def ppo_discrete() -> TinyModel:
-    env = RacingEnv(TRACK)
+def tiny_ppo(env: RacingEnv, seed: int) -> PPO:
+    """A PPO with the lean network after one 64-step update on ``env`` (closed after)."""
     model = PPO(
         "CnnPolicy",
         env,
@@ -34,10 +33,17 @@ def ppo_discrete() -> TinyModel:
         batch_size=32,
         n_epochs=1,
         device="cpu",
-        seed=1,
+        seed=seed,
     )
     model.learn(64)
     env.close()
+    return model
+
+
+@pytest.fixture(scope="session")
+def ppo_discrete() -> TinyModel:
+    env = RacingEnv(TRACK)
+    model = tiny_ppo(env, seed=1)
     meta = build_metadata(
         action_space=env.actions.to_metadata(), neural_network="RACECRAFT_LEAN_CNN"
     )
@@ -46,19 +52,7 @@ def ppo_discrete() -> TinyModel:
 
 @pytest.fixture(scope="session")
 def ppo_continuous() -> TinyModel:
-    env = RacingEnv(TRACK, action_space=CONTINUOUS)
-    model = PPO(
-        "CnnPolicy",
-        env,
-        policy_kwargs=policy_kwargs(),
-        n_steps=64,
-        batch_size=32,
-        n_epochs=1,
-        device="cpu",
-        seed=2,
-    )
-    model.learn(64)
-    env.close()
+    model = tiny_ppo(RacingEnv(TRACK, action_space=CONTINUOUS), seed=2)
     return TinyModel(
         model, build_metadata(action_space=CONTINUOUS, neural_network="RACECRAFT_LEAN_CNN")
     )

@@ -4,7 +4,9 @@ clear error, and the host stays intact.
 Files marked ``mode: bypass`` run with the Python layer switched off (no static check, full
 builtins): the OS layers alone must contain them. Placeholders: @CANARY@ a path in a
 writable temp dir that must not appear, @SECRET@ a readable file whose content must not leak,
-@TARGET@ a file that must survive, @PORT@ a listening TCP port that must get no connection.
+@TARGET@ a file that must survive, @PORT@ a listening TCP port that must get no connection,
+@REDIS_SOCKET@ the test Redis's unix socket (its keys must not change), @ROOT@ this checkout.
+A ``# slow: yes`` line marks a case that needs its full time limit.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import redis
 
 from tests.training.sandbox_support import host_intact, real_params
 from training.sandbox import SandboxLimits, check_source, evaluate_reward
@@ -32,6 +35,7 @@ class HostileCase:
     expect: str
     match: str
     line: int | None
+    slow: bool
     source: str
 
 
@@ -45,6 +49,7 @@ def _load(path: Path) -> HostileCase:
         expect=meta["expect"],
         match=meta.get("match", ""),
         line=int(meta["line"]) if "line" in meta else None,
+        slow=meta.get("slow") == "yes",
         source=text,
     )
 
@@ -53,7 +58,7 @@ CASES = [_load(p) for p in sorted(HOSTILE_DIR.glob("*.py")) if p.name != "__init
 
 
 def test_the_suite_covers_enough() -> None:
-    assert len(CASES) >= 40
+    assert len(CASES) >= 130
     titles = " ".join(c.title + " " + c.source for c in CASES)
     for topic in [
         "import os",
@@ -88,13 +93,30 @@ def test_the_suite_covers_enough() -> None:
         "threading",
         "params.clear",
         "environ",
+        ".format(",
+        "format_map",
+        "match params",
+        "case object(",
+        "pickle",
+        "prctl",
+        "setrlimit",
+        "/proc/self",
+        "closerange",
+        "clock_settime",
+        "gc.get_objects",
+        "ptrace",
+        "io_uring",
+        "AF_UNIX",
+        "SOCK_DGRAM",
+        "setsid",
+        "execv",
     ]:
         assert topic in titles, topic
-    assert sum(c.mode == "bypass" for c in CASES) >= 15
+    assert sum(c.mode == "bypass" for c in CASES) >= 40
 
 
 @pytest.fixture
-def arena(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+def arena(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, redis_url: str):
     """Temp files for the placeholders, a listening port, a secret in our environment."""
     monkeypatch.setenv("RACECRAFT_TEST_SECRET", SECRET)
     secret = tmp_path / "secret.txt"
@@ -110,21 +132,33 @@ def arena(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     probe = tmp_path / "probe"
     probe.write_text("x")
     probe.unlink()
+    store = redis.Redis.from_url(redis_url)
+    store.set("racecraft-hostile-canary", "keep")
+    socket_path = redis_url.split("://", 1)[1].split("?")[0] if "unix" in redis_url else ""
     yield {
         "@CANARY@": str(tmp_path / "canary"),
         "@SECRET@": str(secret),
         "@TARGET@": str(target),
         "@PORT@": str(listener.getsockname()[1]),
+        "@REDIS_SOCKET@": socket_path or str(tmp_path / "no-redis.sock"),
+        "@ROOT@": str(Path(__file__).resolve().parents[2]),
         "dir": tmp_path,
         "listener": listener,
+        "redis": store,
     }
     listener.close()
+    store.delete("racecraft-hostile-canary")
+    store.close()
 
 
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+@pytest.mark.parametrize(
+    "case",
+    [pytest.param(c, marks=pytest.mark.slow) if c.slow else c for c in CASES],
+    ids=[c.name for c in CASES],
+)
 def test_hostile_function_is_refused_or_contained(case: HostileCase, arena: dict) -> None:
     source = case.source
-    for key in ("@CANARY@", "@SECRET@", "@TARGET@", "@PORT@"):
+    for key in ("@CANARY@", "@SECRET@", "@TARGET@", "@PORT@", "@REDIS_SOCKET@", "@ROOT@"):
         source = source.replace(key, arena[key])
     guarded = case.mode == "guarded"
     static_case = guarded and case.expect in ("SYNTAX_ERROR", "IMPORT_ERROR")
@@ -158,3 +192,4 @@ def test_hostile_function_is_refused_or_contained(case: HostileCase, arena: dict
     with pytest.raises(BlockingIOError):
         arena["listener"].accept()
     assert params == real_params()  # the caller's params are untouched
+    assert arena["redis"].get("racecraft-hostile-canary") == b"keep"  # no FLUSHALL, no DEL

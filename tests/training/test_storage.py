@@ -1,7 +1,8 @@
 """The object store contract, run against a local folder and a real S3 server on loopback.
 
-The S3 server is moto's ThreadedMotoServer on 127.0.0.1 (an ephemeral port); the minio SDK
-talks plain HTTP to it, exactly as it talks to MinIO in production.
+The S3 server is moto's ThreadedMotoServer on 127.0.0.1 (an ephemeral port; the
+``s3_endpoint`` fixture of tests/support.py); the minio SDK talks plain HTTP to it, exactly as
+it talks to MinIO in production.
 """
 
 from __future__ import annotations
@@ -9,13 +10,12 @@ from __future__ import annotations
 import os
 import threading
 import uuid
-from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
-from moto.server import ThreadedMotoServer
 
+from tests.support import S3_ACCESS_KEY, S3_SECRET_KEY
 from training.interchange.layout import ModelKeys, evaluation_stamp, model_prefix
 from training.storage import (
     LocalStore,
@@ -23,30 +23,12 @@ from training.storage import (
     ObjectNotFound,
     ObjectStore,
     StoreError,
+    check_bucket_name,
     store_from_settings,
     validate_key,
 )
 
-ACCESS, SECRET = "racecraft-test", "racecraft-test-secret"
-
-
-@pytest.fixture(scope="module")
-def s3_endpoint() -> Iterator[str]:
-    """``host:port`` of a moto S3 server on loopback for this module."""
-    saved = {k: os.environ.get(k) for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY")}
-    os.environ["AWS_ACCESS_KEY_ID"], os.environ["AWS_SECRET_ACCESS_KEY"] = ACCESS, SECRET
-    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
-    server.start()
-    host, port = server.get_host_and_port()
-    try:
-        yield f"{host}:{port}"
-    finally:
-        server.stop()
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+ACCESS, SECRET = S3_ACCESS_KEY, S3_SECRET_KEY  # what the s3_endpoint fixture accepts
 
 
 def minio_store(endpoint: str, bucket: str | None = None) -> MinioStore:
@@ -68,7 +50,6 @@ def test_put_get_roundtrip(store: ObjectStore) -> None:
     store.put_bytes("7/model/model_metadata.json", b'{"a": 1}', content_type="application/json")
     assert store.get_bytes("7/model/model_metadata.json") == b'{"a": 1}'
     assert store.exists("7/model/model_metadata.json")
-    assert store.size("7/model/model_metadata.json") == 8
 
 
 def test_overwrite_replaces(store: ObjectStore) -> None:
@@ -83,7 +64,6 @@ def test_empty_and_binary_objects(store: ObjectStore) -> None:
     store.put_bytes("b/empty", b"")
     store.put_bytes("b/blob", blob)
     assert store.get_bytes("b/empty") == b""
-    assert store.size("b/empty") == 0
     assert store.get_bytes("b/blob") == blob
 
 
@@ -92,8 +72,6 @@ def test_missing_key(store: ObjectStore) -> None:
     with pytest.raises(ObjectNotFound) as info:
         store.get_bytes("nothing/here.txt")
     assert info.value.key == "nothing/here.txt"
-    with pytest.raises(ObjectNotFound):
-        store.size("nothing/here.txt")
     assert isinstance(info.value, StoreError)
 
 
@@ -114,14 +92,6 @@ def test_list_is_recursive_sorted_and_folder_scoped(store: ObjectStore) -> None:
     assert store.list() == ["1/a/y.txt", "1/a/z.txt", "1/b.txt", "10/c.txt", "2/d.txt"]
 
 
-def test_delete(store: ObjectStore) -> None:
-    store.put_bytes("d/one", b"1")
-    store.delete("d/one")
-    assert not store.exists("d/one")
-    store.delete("d/one")  # deleting a missing key is fine
-    assert store.list() == []
-
-
 def test_delete_prefix_removes_only_that_model(store: ObjectStore) -> None:
     keys, other = ModelKeys(5), ModelKeys(55)
     for key in (keys.metadata, keys.best, keys.simtrace(0), keys.video("e1"), other.metadata):
@@ -137,26 +107,6 @@ def test_delete_prefix_refuses_the_whole_store(store: ObjectStore) -> None:
         with pytest.raises(StoreError):
             store.delete_prefix(prefix)
     assert store.list() == ["a/b"]
-
-
-def test_copy_prefix(store: ObjectStore) -> None:
-    store.put_bytes("src/model/a.zip", b"A")
-    store.put_bytes("src/reward_function.py", b"R")
-    assert store.copy_prefix("src", "dst") == 2
-    assert store.list("dst") == ["dst/model/a.zip", "dst/reward_function.py"]
-    assert store.get_bytes("dst/model/a.zip") == b"A"
-
-
-def test_files(store: ObjectStore, tmp_path: Path) -> None:
-    source = tmp_path / "video.mp4"
-    source.write_bytes(os.urandom(300_000))
-    store.put_file("v/videos/e.mp4", source, content_type="video/mp4")
-    assert store.size("v/videos/e.mp4") == 300_000
-    target = tmp_path / "copy.mp4"
-    store.get_file("v/videos/e.mp4", target)
-    assert target.read_bytes() == source.read_bytes()
-    with pytest.raises(ObjectNotFound):
-        store.get_file("v/videos/missing.mp4", tmp_path / "missing.mp4")
 
 
 BAD_KEYS = [
@@ -182,8 +132,6 @@ def test_bad_keys_refused(store: ObjectStore, key: str) -> None:
         store.get_bytes(key)
     with pytest.raises(StoreError):
         store.exists(key)
-    with pytest.raises(StoreError):
-        store.delete(key)
 
 
 def test_dotfiles_are_valid_keys(store: ObjectStore) -> None:
@@ -256,10 +204,10 @@ def test_local_write_is_atomic(tmp_path: Path) -> None:
     assert os.listdir(tmp_path / "store" / ".racecraft-tmp") == []
 
 
-def test_local_delete_prunes_empty_folders(tmp_path: Path) -> None:
+def test_local_delete_prefix_prunes_empty_folders(tmp_path: Path) -> None:
     store = LocalStore(tmp_path / "store")
     store.put_bytes("m/a/b/c.txt", b"x")
-    store.delete("m/a/b/c.txt")
+    store.delete_prefix("m/a")
     assert sorted(os.listdir(tmp_path / "store")) == [".racecraft-tmp"]
 
 
@@ -281,11 +229,29 @@ def test_minio_creates_missing_bucket_once(s3_endpoint: str) -> None:
     assert second.client.bucket_exists(bucket)
 
 
+@pytest.mark.parametrize("bucket", ["deepracer-models", "deepracer", "deepracer.team-1"])
+def test_bucket_names_deepracer_tools_read(bucket: str) -> None:
+    assert check_bucket_name(bucket) == bucket
+
+
 @pytest.mark.parametrize(
-    "bucket", ["models", "racecraft", "DeepRacer-x", "deepracer_x", "deepracer-", "deepracer..x"]
+    ("bucket", "message"),
+    [
+        ("models", "must start with 'deepracer'"),
+        ("racecraft", "must start with 'deepracer'"),
+        ("my-deepracer", "must start with 'deepracer'"),
+        ("DeepRacer-x", "must start with 'deepracer'"),
+        ("deepracer_x", "not a valid bucket name"),
+        ("deepracer_Models", "not a valid bucket name"),
+        ("deepracer-", "not a valid bucket name"),
+        ("deepracer..x", "not a valid bucket name"),
+        ("deepracer" + "x" * 60, "not a valid bucket name"),
+    ],
 )
-def test_minio_bucket_name_rule(bucket: str) -> None:
-    with pytest.raises(StoreError, match="bucket"):
+def test_minio_bucket_name_rule(bucket: str, message: str) -> None:
+    with pytest.raises(StoreError, match=message):
+        check_bucket_name(bucket)
+    with pytest.raises(StoreError, match=message):
         MinioStore("127.0.0.1:9", ACCESS, SECRET, bucket=bucket)
 
 

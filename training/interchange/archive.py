@@ -234,7 +234,8 @@ def _find(files: Mapping[str, bytes], *names: str) -> str:
     raise ArchiveError(f"{names[0]} is missing (looked for {', '.join(names)})")
 
 
-def _json(files: Mapping[str, bytes], name: str) -> object:
+def read_json(files: Mapping[str, bytes], name: str) -> object:
+    """The JSON file ``name`` of ``files``; raises :class:`ArchiveError` naming it."""
     try:
         text = files[name].decode("utf-8-sig")
         return json.loads(text, parse_constant=_refuse_constant)
@@ -246,7 +247,9 @@ def _refuse_constant(name: str) -> object:
     raise ValueError(f"{name} is not allowed")
 
 
-def _reward_source(files: Mapping[str, bytes], name: str) -> str:
+def reward_source(files: Mapping[str, bytes], name: str) -> str:
+    """The reward function ``name`` as text; raises :class:`ArchiveError` when it is not
+    UTF-8, too long, empty or holds NUL characters."""
     try:
         source = files[name].decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -270,7 +273,7 @@ def _checkpoint_name(files: Mapping[str, bytes]) -> str:
     )
     index_name = next((n for n in (f"{folder}deepracer_checkpoints.json",) if n in files), None)
     if index_name:
-        index = _json(files, index_name)
+        index = read_json(files, index_name)
         for role in ("best_checkpoint", "last_checkpoint"):
             entry = index.get(role) if isinstance(index, dict) else None
             named = entry.get("name") if isinstance(entry, dict) else None
@@ -312,11 +315,13 @@ def import_virtual_model(
         raise ArchiveError(f"{meta_name}: {exc}") from None
     hp_name = _find(files, "ip/hyperparameters.json", "hyperparameters.json")
     try:
-        hyperparameters = parse_hyperparameters(_json(files, hp_name), metadata.training_algorithm)
+        hyperparameters = parse_hyperparameters(
+            read_json(files, hp_name), metadata.training_algorithm
+        )
     except HyperparameterError as exc:
         raise ArchiveError(f"{hp_name}: {exc}") from None
     reward_name = _find(files, "reward_function.py")
-    reward = _reward_source(files, reward_name)
+    reward = reward_source(files, reward_name)
     ckpt_name = _checkpoint_name(files)
     try:
         model = load_checkpoint(files[ckpt_name], metadata)

@@ -1,9 +1,10 @@
-"""Exporting trained models: the policy as ONNX, the car archive, the virtual-model and logs
-archives; and loading a checkpoint safely (weights only) for a given ``model_metadata.json``.
+"""Exporting trained models: the "ONNX policy" download, the virtual-model and logs archives;
+and loading a checkpoint safely (weights only) for a given ``model_metadata.json``. The car's
+download (a frozen TensorFlow graph) is :mod:`training.interchange.carmodel`.
 
-**ONNX** (:func:`export_onnx`): input ``"observation"``, float32 ``(1, C, 120, 160)``, the
-grayscale camera in 0..255 (``C`` = 1, or 2 for the stereo pair); the /255 scaling is inside the
-graph. Output for a discrete space ``"action_probabilities"`` ``(1, n)`` (softmax over the
+**ONNX policy** (:func:`export_onnx`): input ``"observation"``, float32 ``(1, C, 120, 160)``,
+the grayscale camera in 0..255 (``C`` = 1, or 2 for the stereo pair); the /255 scaling is inside
+the graph. Output for a discrete space ``"action_probabilities"`` ``(1, n)`` (softmax over the
 actions of ``model_metadata.json``, in order); for a continuous one ``"action"`` ``(1, 2)`` =
 ``[steering_deg, speed_m_s]``, deterministic: PPO's mean clipped to the ranges, SAC's
 tanh-squashed mean rescaled to them (what ``model.predict(obs, deterministic=True)`` returns).
@@ -11,8 +12,7 @@ Exported with torch's TorchScript-based exporter (``dynamo=False``), opset 17: t
 ("dynamo") exporter needs the onnxscript package, which is not a dependency, and the legacy
 exporter handles these small static graphs reliably, offline.
 
-**Archives** are deterministic tar.gz files: names sorted, relative (checked like store keys),
-mtime fixed, owner 0/0, mode 0644, gzip header without name or time.
+**Archives** are deterministic tar.gz files (:mod:`training.interchange.tarball`).
 
 **Checkpoints** are SB3 ``model.save()`` zips. :func:`load_checkpoint` never unpickles the
 file's ``data`` (SB3 stores classes with cloudpickle there, which would run code from an
@@ -22,10 +22,8 @@ uploaded file): it builds a fresh model from the metadata and loads the tensors 
 
 from __future__ import annotations
 
-import gzip
 import io
 import json
-import tarfile
 import warnings
 from collections.abc import Mapping
 
@@ -35,6 +33,12 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from torch import nn
 
+from training.interchange.carmodel import build_car_archive  # noqa: F401 - re-exported
+from training.interchange.tarball import (  # noqa: F401 - re-exported for callers
+    ARCHIVE_MTIME,
+    ExportError,
+    deterministic_tar_gz,
+)
 from training.rl.checkpoints import (  # noqa: F401 - re-exported for callers
     CheckpointError,
     checkpoint_bytes,
@@ -43,13 +47,11 @@ from training.rl.checkpoints import (  # noqa: F401 - re-exported for callers
     read_checkpoint_tensors,
 )
 from training.rl.metadata import ModelMetadata
-from training.storage import StoreError, validate_key
 
 OPSET = 17
 INPUT_NAME = "observation"
 DISCRETE_OUTPUT = "action_probabilities"
 CONTINUOUS_OUTPUT = "action"
-ARCHIVE_MTIME = 1_543_363_200  # 2018-11-28, DeepRacer's launch; any fixed value works
 MAX_CHECKPOINT_BYTES = 1_000_000_000  # uncompressed tensors in one checkpoint zip
 CHECKPOINTS_INDEX = "model/deepracer_checkpoints.json"
 VIRTUAL_MODEL_REQUIRED = (
@@ -61,14 +63,10 @@ VIRTUAL_MODEL_EXCLUDED = ("training-simtrace/", "evaluation/", "videos/", "expor
 """Folders left out of the virtual model (DeepRacer leaves out sim-traces, videos, output)."""
 
 
-class ExportError(ValueError):
-    """A model that cannot be exported or archived."""
-
-
 # --- ONNX ------------------------------------------------------------------------------------
 
 
-class _DiscretePolicy(nn.Module):
+class DiscretePolicy(nn.Module):
     """PPO, discrete: image 0..255 → softmax over the actions."""
 
     def __init__(self, policy: nn.Module) -> None:
@@ -82,7 +80,7 @@ class _DiscretePolicy(nn.Module):
         return torch.softmax(self.head(latent), dim=-1)
 
 
-class _BoxPolicy(nn.Module):
+class BoxPolicy(nn.Module):
     """PPO or SAC, continuous: image 0..255 → deterministic ``[steering_deg, speed]``."""
 
     def __init__(self, model: BaseAlgorithm) -> None:
@@ -126,10 +124,10 @@ def export_onnx(model: BaseAlgorithm | bytes, metadata: ModelMetadata | None = N
     if isinstance(space, gym.spaces.Discrete):
         if isinstance(model, SAC):
             raise ExportError("SAC needs a continuous action space")
-        wrapper: nn.Module = _DiscretePolicy(model.policy)
+        wrapper: nn.Module = DiscretePolicy(model.policy)
         output = DISCRETE_OUTPUT
     elif isinstance(space, gym.spaces.Box) and space.shape == (2,):
-        wrapper, output = _BoxPolicy(model), CONTINUOUS_OUTPUT
+        wrapper, output = BoxPolicy(model), CONTINUOUS_OUTPUT
     else:
         raise ExportError(f"cannot export a policy with action space {space}")
     shape = tuple(model.policy.observation_space.shape)
@@ -167,40 +165,6 @@ def _with_properties(onnx_bytes: bytes, metadata: ModelMetadata | None) -> bytes
 
 
 # --- archives --------------------------------------------------------------------------------
-
-
-def deterministic_tar_gz(files: Mapping[str, bytes]) -> bytes:
-    """A tar.gz of ``files`` (relative name → bytes) that is byte-for-byte reproducible."""
-    raw = io.BytesIO()
-    with tarfile.open(fileobj=raw, mode="w", format=tarfile.PAX_FORMAT) as tar:
-        for name in sorted(files):
-            try:
-                validate_key(name)
-            except StoreError as exc:
-                raise ExportError(f"bad archive member name: {exc}") from None
-            data = bytes(files[name])
-            info = tarfile.TarInfo(name)
-            info.size, info.mtime, info.mode = len(data), ARCHIVE_MTIME, 0o644
-            info.uid = info.gid = 0
-            info.uname = info.gname = ""
-            tar.addfile(info, io.BytesIO(data))
-    return gzip.compress(raw.getvalue(), compresslevel=6, mtime=0)
-
-
-def build_car_archive(metadata: ModelMetadata, onnx_bytes: bytes) -> bytes:
-    """The physical-car download: ``model_metadata.json`` and ``model.onnx``, both at the top.
-
-    DeepRacer's own file holds ``agent/model.pb``, a frozen TensorFlow graph, which the car
-    moves to ``model.pb`` on upload. Racecraft models are ONNX, so the archive has no
-    ``agent/`` folder: a stock car would take any ``agent/model.*`` for a TensorFlow graph and
-    fail later; an ONNX-aware loader (or OpenVINO's converter, which reads ONNX) finds
-    ``model.onnx`` beside the metadata, as in architecture.md's ``export/car.tar.gz``.
-    """
-    if not onnx_bytes:
-        raise ExportError("the ONNX model is empty")
-    return deterministic_tar_gz(
-        {"model_metadata.json": metadata.dumps(), "model.onnx": bytes(onnx_bytes)}
-    )
 
 
 def checkpoints_index(best: str, last: str) -> bytes:

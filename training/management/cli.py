@@ -25,6 +25,7 @@ from django.db import connections
 
 from racing.rules import STATUS_LABELS, Status
 from training import services
+from training.formatting import format_lap_s
 from training.management.progress import ProgressBar
 from training.models import (
     FINISHED_JOB_STATUSES,
@@ -78,13 +79,6 @@ def mmss(seconds: float) -> str:
     return f"{seconds // 60:02d}:{seconds % 60:02d}"
 
 
-def lap_time(seconds: float) -> str:
-    """``mm:ss.mmm``, as DeepRacer's results table shows a lap time."""
-    millis = max(0, int(round(seconds * 1000)))
-    minutes, millis = divmod(millis, 60_000)
-    return f"{minutes:02d}:{millis // 1000:02d}.{millis % 1000:03d}"
-
-
 def _refresh(job: Job) -> Job:
     return type(job).objects.select_related("model").get(pk=job.pk)
 
@@ -129,7 +123,7 @@ def results_table(job: EvaluationJob) -> str:
             status = str(lap.get("status", ""))
         rows.append((
             str(lap.get("trial", "")),
-            lap_time(float(lap.get("time_s", 0.0))),
+            format_lap_s(float(lap.get("time_s", 0.0))),
             f"{float(lap.get('progress', 0.0)):.1f}%",
             status,
             f"{lap.get('off_tracks', 0)} (+{float(lap.get('off_track_penalty_s', 0)):g} s)",
@@ -325,6 +319,21 @@ def add_owner_argument(parser, *, required: bool) -> None:
         required=required,
         help="the user who owns the model"
         + ("" if required else " (checked when given; default: the model's owner)"),
+    )
+
+
+def add_model_arguments(parser) -> None:
+    """``MODEL_ID`` and an optional ``--owner``, read back with :func:`owner_and_model`."""
+    parser.add_argument("model_id", type=int, metavar="MODEL_ID")
+    add_owner_argument(parser, required=False)
+
+
+def add_queue_argument(parser, *, what: str) -> None:
+    """``--queue``: a worker runs the ``what`` (job, evaluation) and the command follows it."""
+    parser.add_argument(
+        "--queue",
+        action="store_true",
+        help=f"queue the {what} for a Celery worker and follow it, instead of running it here",
     )
 
 

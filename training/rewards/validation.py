@@ -28,6 +28,7 @@ from training.sandbox import (
     VALIDATION_LIMITS,
     RewardError,
     SandboxLimits,
+    SandboxUnavailable,
     check_source,
     evaluate_reward,
 )
@@ -40,12 +41,14 @@ SITUATIONS: tuple[str, ...] = tuple(SCENARIOS)
 class ValidationResult:
     """Outcome of validation: ``ok`` when ``errors`` is empty. ``rewards`` maps each situation
     that ran cleanly to its reward; ``layers`` is the sandbox's isolation report; ``output``
-    what the function printed (bounded)."""
+    what the function printed (bounded); ``warnings`` says when it ran with weakened isolation
+    (``RACECRAFT_ALLOW_WEAK_SANDBOX``)."""
 
     errors: list[RewardError]
     rewards: dict[str, float] = field(default_factory=dict)
     layers: dict[str, str] = field(default_factory=dict)
     output: str = ""
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -58,6 +61,7 @@ class ValidationResult:
             "rewards": self.rewards,
             "layers": self.layers,
             "output": self.output,
+            "warnings": self.warnings,
         }
 
 
@@ -81,14 +85,18 @@ def validate_reward_function(
 
     Errors come back as RewardError with DeepRacer's types: SYNTAX_ERROR (syntax, refused
     names, length), IMPORT_ERROR (refused imports), TEST_FAILURE (runtime: exceptions with
-    the line in the user's source, bad return values, time limits, a crashed sandbox).
-    Raises UnknownTrackError for an unknown track id.
+    the line in the user's source, bad return values, time limits, a crashed sandbox, or a
+    machine that cannot isolate reward code: then nothing ran and the one error says what the
+    operator must provide). Raises UnknownTrackError for an unknown track id.
     """
     loaded = _load_track(track)
     errors = check_source(source)
     if errors:
         return ValidationResult(errors)
-    result = evaluate_reward(source, situation_params(loaded, situations), limits=limits)
+    try:
+        result = evaluate_reward(source, situation_params(loaded, situations), limits=limits)
+    except SandboxUnavailable as exc:
+        return ValidationResult([RewardError("TEST_FAILURE", str(exc))])
     rewards: dict[str, float] = {}
     seen: set[tuple[str, str]] = set()
     for name, outcome in zip(situations, result.outcomes, strict=True):
@@ -104,7 +112,13 @@ def validate_reward_function(
         errors.append(
             RewardError(err.type, f"situation '{name}': {err.message}", err.line, err.column)
         )
-    return ValidationResult(errors, rewards, result.layers, result.output)
+    warnings = []
+    if result.weak:
+        warnings.append(
+            "This reward function ran with weakened isolation (missing: "
+            f"{', '.join(result.weak)}), because the operator set RACECRAFT_ALLOW_WEAK_SANDBOX."
+        )
+    return ValidationResult(errors, rewards, result.layers, result.output, warnings)
 
 
 def main(argv: list[str] | None = None) -> int:

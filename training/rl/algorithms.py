@@ -13,14 +13,15 @@ hard copies, which SB3 does not offer for SAC).
 
 from __future__ import annotations
 
-import contextlib
 import math
-import types
 
+import numpy as np
 import torch
 import torch.nn.functional as F
+from gymnasium import spaces
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.utils import explained_variance, polyak_update
 from stable_baselines3.common.vec_env import VecEnv
 
 from training.rl.checkpoints import load_weights
@@ -39,33 +40,101 @@ class AlgorithmError(ValueError):
     """An algorithm that does not fit the action space."""
 
 
-@contextlib.contextmanager
-def _value_loss(module, loss_type: str):
-    """Swap the mean-squared error SB3 uses for its value/critic loss with Huber, for one
-    update. SB3 computes that loss with ``F.mse_loss`` and has no switch for it."""
-    if loss_type != "huber":
-        yield
-        return
-    original = module.F
-    patched = types.SimpleNamespace(**{k: getattr(F, k) for k in dir(F) if not k.startswith("__")})
-    patched.mse_loss = F.smooth_l1_loss
-    module.F = patched
-    try:
-        yield
-    finally:
-        module.F = original
+def value_loss(loss_type: str, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """DeepRacer's ``loss_type`` between values and their targets (same shapes), a scalar.
+
+    ``huber`` is the Huber loss with δ = 1 (``smooth_l1_loss``), ``mean_squared_error`` the
+    mean squared error SB3 uses; both are means over the elements and symmetric in a and b
+    (the callers pass them in SB3's order, so that its float results are matched exactly).
+    """
+    if loss_type == "huber":
+        return F.smooth_l1_loss(a, b)
+    return F.mse_loss(a, b)
 
 
 class DeepRacerPPO(PPO):
-    """SB3's PPO with DeepRacer's loss switch and a rollout length that can change."""
+    """SB3's PPO with DeepRacer's loss switch and a rollout length that can change.
+
+    SB3 has no hook for the value loss (``PPO.train`` calls ``F.mse_loss`` inline), so
+    ``train`` is SB3 2.9's own, step for step, with the value loss from ``value_loss``; with
+    ``mean_squared_error`` an update is exactly SB3's (tests/training/rl/test_algorithms.py holds
+    both to that, so an SB3 upgrade that changes its update shows up there).
+    """
 
     loss_type = "huber"
 
     def train(self) -> None:
-        import stable_baselines3.ppo.ppo as ppo_module
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        clip_range = self.clip_range(self._current_progress_remaining)
+        if self.clip_range_vf is not None:
+            clip_range_vf = self.clip_range_vf(self._current_progress_remaining)
+        entropy_losses, pg_losses, value_losses, clip_fractions = [], [], [], []
+        continue_training = True
+        for _ in range(self.n_epochs):
+            approx_kl_divs = []
+            for rollout_data in self.rollout_buffer.get(self.batch_size):
+                actions = rollout_data.actions
+                if isinstance(self.action_space, spaces.Discrete):
+                    actions = rollout_data.actions.long().flatten()
+                values, log_prob, entropy = self.policy.evaluate_actions(
+                    rollout_data.observations, actions
+                )
+                values = values.flatten()
+                advantages = rollout_data.advantages
+                if self.normalize_advantage and len(advantages) > 1:
+                    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+                ratio = torch.exp(log_prob - rollout_data.old_log_prob)
+                policy_loss_1 = advantages * ratio
+                policy_loss_2 = advantages * torch.clamp(ratio, 1 - clip_range, 1 + clip_range)
+                policy_loss = -torch.min(policy_loss_1, policy_loss_2).mean()
+                pg_losses.append(policy_loss.item())
+                clip_fractions.append(
+                    torch.mean((torch.abs(ratio - 1) > clip_range).float()).item()
+                )
+                if self.clip_range_vf is None:
+                    values_pred = values
+                else:
+                    values_pred = rollout_data.old_values + torch.clamp(
+                        values - rollout_data.old_values, -clip_range_vf, clip_range_vf
+                    )
+                loss_v = value_loss(self.loss_type, rollout_data.returns, values_pred)
+                value_losses.append(loss_v.item())
+                # Without an analytical entropy, -log_prob estimates it.
+                entropy_loss = -torch.mean(-log_prob if entropy is None else entropy)
+                entropy_losses.append(entropy_loss.item())
+                loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * loss_v
+                with torch.no_grad():
+                    log_ratio = log_prob - rollout_data.old_log_prob
+                    approx_kl_div = torch.mean((torch.exp(log_ratio) - 1) - log_ratio).cpu().numpy()
+                    approx_kl_divs.append(approx_kl_div)
+                if self.target_kl is not None and approx_kl_div > 1.5 * self.target_kl:
+                    continue_training = False
+                    break
+                self.policy.optimizer.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+                self.policy.optimizer.step()
+            self._n_updates += 1
+            if not continue_training:
+                break
 
-        with _value_loss(ppo_module, self.loss_type):
-            super().train()
+        explained_var = explained_variance(
+            self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten()
+        )
+        self.logger.record("train/entropy_loss", np.mean(entropy_losses))
+        self.logger.record("train/policy_gradient_loss", np.mean(pg_losses))
+        self.logger.record("train/value_loss", np.mean(value_losses))
+        self.logger.record("train/approx_kl", np.mean(approx_kl_divs))
+        self.logger.record("train/clip_fraction", np.mean(clip_fractions))
+        self.logger.record("train/loss", loss.item())
+        self.logger.record("train/explained_variance", explained_var)
+        if hasattr(self.policy, "log_std"):
+            self.logger.record("train/std", torch.exp(self.policy.log_std).mean().item())
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/clip_range", clip_range)
+        if self.clip_range_vf is not None:
+            self.logger.record("train/clip_range_vf", clip_range_vf)
 
     def set_rollout_steps(self, n_steps: int) -> None:
         """Collect ``n_steps`` per env before the next update (a new buffer if it changes)."""
@@ -84,13 +153,85 @@ class DeepRacerPPO(PPO):
 
 
 class DeepRacerSAC(SAC):
+    """SB3's SAC with DeepRacer's loss switch for the critics.
+
+    As with PPO, ``train`` is SB3 2.9's own with the critic loss from ``value_loss``.
+    """
+
     loss_type = "mean_squared_error"
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        import stable_baselines3.sac.sac as sac_module
+        self.policy.set_training_mode(True)
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.ent_coef_optimizer is not None:
+            optimizers += [self.ent_coef_optimizer]
+        self._update_learning_rate(optimizers)
+        ent_coef_losses, ent_coefs, actor_losses, critic_losses = [], [], [], []
 
-        with _value_loss(sac_module, self.loss_type):
-            super().train(gradient_steps, batch_size)
+        for gradient_step in range(gradient_steps):
+            replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
+            discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
+            if self.use_sde:
+                self.actor.reset_noise()
+            actions_pi, log_prob = self.actor.action_log_prob(replay_data.observations)
+            log_prob = log_prob.reshape(-1, 1)
+
+            ent_coef_loss = None
+            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+                ent_coef = torch.exp(self.log_ent_coef.detach())
+                ent_coef_loss = -(
+                    self.log_ent_coef * (log_prob + self.target_entropy).detach()
+                ).mean()
+                ent_coef_losses.append(ent_coef_loss.item())
+            else:
+                ent_coef = self.ent_coef_tensor
+            ent_coefs.append(ent_coef.item())
+            if ent_coef_loss is not None and self.ent_coef_optimizer is not None:
+                self.ent_coef_optimizer.zero_grad()
+                ent_coef_loss.backward()
+                self.ent_coef_optimizer.step()
+
+            with torch.no_grad():
+                next_actions, next_log_prob = self.actor.action_log_prob(
+                    replay_data.next_observations
+                )
+                next_q_values = torch.cat(
+                    self.critic_target(replay_data.next_observations, next_actions), dim=1
+                )
+                next_q_values, _ = torch.min(next_q_values, dim=1, keepdim=True)
+                next_q_values = next_q_values - ent_coef * next_log_prob.reshape(-1, 1)
+                target_q_values = (
+                    replay_data.rewards + (1 - replay_data.dones) * discounts * next_q_values
+                )
+            current_q_values = self.critic(replay_data.observations, replay_data.actions)
+            critic_loss = 0.5 * sum(
+                value_loss(self.loss_type, current_q, target_q_values)
+                for current_q in current_q_values
+            )
+            critic_losses.append(critic_loss.item())
+            self.critic.optimizer.zero_grad()
+            critic_loss.backward()
+            self.critic.optimizer.step()
+
+            q_values_pi = torch.cat(self.critic(replay_data.observations, actions_pi), dim=1)
+            min_qf_pi, _ = torch.min(q_values_pi, dim=1, keepdim=True)
+            actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
+            actor_losses.append(actor_loss.item())
+            self.actor.optimizer.zero_grad()
+            actor_loss.backward()
+            self.actor.optimizer.step()
+
+            if gradient_step % self.target_update_interval == 0:
+                polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/ent_coef", np.mean(ent_coefs))
+        self.logger.record("train/actor_loss", np.mean(actor_losses))
+        self.logger.record("train/critic_loss", np.mean(critic_losses))
+        if len(ent_coef_losses) > 0:
+            self.logger.record("train/ent_coef_loss", np.mean(ent_coef_losses))
 
 
 def plan_rollout_steps(episodes: int, mean_episode_steps: float, num_envs: int) -> int:

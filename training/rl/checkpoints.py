@@ -51,13 +51,17 @@ class _SpacesEnv(gym.Env):
 
 
 def new_model(metadata: ModelMetadata) -> BaseAlgorithm:
-    """An untrained SB3 model (CPU) of the metadata's algorithm, network and spaces."""
+    """An untrained SB3 model (CPU) of the metadata's algorithm, network and spaces.
+
+    Its layers keep torch's default initialisation (SB3's orthogonal one is skipped: it takes
+    seconds for DeepRacer's 5.8-million-weight dense layer, and callers load weights over it).
+    """
     env = _SpacesEnv(metadata)
     network = metadata.neural_network
     if metadata.training_algorithm == "sac":
         kwargs = sac_policy_kwargs(network)
         return SAC("CnnPolicy", env, policy_kwargs=kwargs, buffer_size=1, device="cpu")
-    kwargs = policy_kwargs(network)
+    kwargs = {**policy_kwargs(network), "ortho_init": False}
     return PPO("CnnPolicy", env, policy_kwargs=kwargs, n_steps=2, batch_size=2, device="cpu")
 
 

@@ -17,13 +17,30 @@ LEAN = "RACECRAFT_LEAN_CNN"
 SHALLOW = "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"
 STANDARD = "DEEP_CONVOLUTIONAL_NETWORK"
 DEEP = "DEEP_CONVOLUTIONAL_NETWORK_DEEP"
-NETWORKS = (LEAN, SHALLOW, STANDARD, DEEP)
+AWS_SHALLOW = "AWS_DEEPRACER_3_LAYER_CNN"
+AWS_STANDARD = "AWS_DEEPRACER_5_LAYER_CNN"
+NETWORKS = (LEAN, SHALLOW, STANDARD, DEEP, AWS_SHALLOW, AWS_STANDARD)
 NETWORK_LABELS = {
     LEAN: "Racecraft lean CNN (pooled 80×60, fastest on a CPU)",
     SHALLOW: "DeepRacer 3-layer CNN",
     STANDARD: "DeepRacer 5-layer CNN",
     DEEP: "DeepRacer deep CNN",
+    AWS_SHALLOW: "DeepRacer 3-layer CNN, heads as in AWS (imported DeepRacer models)",
+    AWS_STANDARD: "DeepRacer 5-layer CNN, heads as in AWS (imported DeepRacer models)",
 }
+DEEPRACER_NAMES = {
+    LEAN: SHALLOW,
+    SHALLOW: SHALLOW,
+    STANDARD: STANDARD,
+    DEEP: DEEP,
+    AWS_SHALLOW: SHALLOW,
+    AWS_STANDARD: STANDARD,
+}
+"""The ``neural_network`` value DeepRacer's tools accept for each network (the car ignores it;
+DeepRacer-for-Cloud and the SimApp refuse names they do not know)."""
+DIRECT_HEADS = (AWS_SHALLOW, AWS_STANDARD)
+"""Networks whose policy and value heads sit right on the dense layer, as in DeepRacer's own
+models (Racecraft's other networks put a 64-unit hidden layer before each head)."""
 
 
 class NetworkError(ValueError):
@@ -46,6 +63,8 @@ SPECS: dict[str, tuple[int, list[tuple[int, int, int]], int]] = {
     STANDARD: (1, [(32, 5, 2), (32, 3, 1), (64, 3, 2), (64, 3, 1)], 512),
     DEEP: (1, [(32, 8, 4), (32, 4, 2), (64, 4, 2), (64, 3, 1)], 512),
 }
+SPECS[AWS_SHALLOW] = SPECS[SHALLOW]
+SPECS[AWS_STANDARD] = SPECS[STANDARD]
 
 
 class CameraExtractor(BaseFeaturesExtractor):
@@ -75,12 +94,13 @@ def policy_kwargs(network: str = LEAN) -> dict:
     return {
         "features_extractor_class": CameraExtractor,
         "features_extractor_kwargs": {"network": network},
-        "net_arch": {"pi": [64], "vf": [64]},
+        "net_arch": {"pi": [], "vf": []} if network in DIRECT_HEADS else {"pi": [64], "vf": [64]},
         "normalize_images": True,
     }
 
 
 def sac_policy_kwargs(network: str = LEAN) -> dict:
+    """SB3 ``policy_kwargs`` of SAC for a network name."""
     kwargs = policy_kwargs(network)
-    kwargs["net_arch"] = {"pi": [64], "qf": [64]}
+    kwargs["net_arch"] = {"pi": [] if network in DIRECT_HEADS else [64], "qf": [64]}
     return kwargs

@@ -20,7 +20,7 @@ import redis
 
 from training.rollout.envs import EnvSpec
 from training.rollout.vecenv import ROLLOUT_LIMITS, STEP_TIMEOUT_S, RolloutError, _WorkerVecEnv
-from training.sandbox import SandboxCrashed, SandboxProcess
+from training.sandbox import SandboxCrashed, SandboxProcess, checked
 from training.sandbox.protocol import ProtocolError, decode, encode
 
 log = logging.getLogger(__name__)
@@ -29,6 +29,14 @@ LaunchWorker = Callable[..., None]
 START_TIMEOUT_S = 120.0
 IDLE_TIMEOUT_S = 600.0
 KEY_TTL_S = 3600
+
+
+def _client(redis_url: str) -> redis.Redis:
+    """A client whose socket waits longer than our longest blocking pop: redis-py's default
+    read timeout (5 s in redis-py 8) would end a pop that is still legitimately waiting for a
+    slow step on a loaded machine ("Timeout reading from socket")."""
+    longest_pop = max(START_TIMEOUT_S, STEP_TIMEOUT_S, IDLE_TIMEOUT_S)
+    return redis.Redis.from_url(redis_url, socket_timeout=longest_pop + 30)
 
 
 def _keys(prefix: str, session: str, slot: int) -> tuple[str, str]:
@@ -55,7 +63,7 @@ def _pop(client: redis.Redis, key: str, timeout: float) -> Any | None:
 def serve_rollout(*, redis_url: str, prefix: str, session: str, slot: int, args: dict,
                   reward_source: str) -> str:  # fmt: skip
     """Run on a simulation machine: a sandboxed rollout worker, bridged to Redis."""
-    client = redis.Redis.from_url(redis_url)
+    client = _client(redis_url)
     cmd_key, reply_key = _keys(prefix, session, slot)
     worker = SandboxProcess(
         target="training.rollout.vecenv:worker_main",
@@ -112,10 +120,14 @@ class RemoteSlot:
             raise RolloutError(f"lost the connection to Redis: {exc}") from None
         if msg is None:
             raise RolloutError(f"a simulation worker gave no answer within {timeout:g} s")
-        if not isinstance(msg, dict):
+        kind = msg.get("kind") if isinstance(msg, dict) else None
+        if kind not in ("ready", "message", "error"):
             raise RolloutError("a simulation worker sent malformed data")
-        if msg.get("kind") == "error":
-            raise RolloutError(str(msg.get("message", "a simulation worker failed")))
+        if kind == "error":
+            text = msg.get("message")
+            if not isinstance(text, str):
+                raise RolloutError("a simulation worker sent malformed data")
+            raise RolloutError(text[: checked.MAX_TEXT] or "a simulation worker failed")
         return msg
 
 
@@ -135,7 +147,7 @@ class RemoteVecEnv(_WorkerVecEnv):
         probe = spec.make(None)
         obs_space, act_space = probe.observation_space, probe.action_space
         probe.close()
-        self.client = redis.Redis.from_url(redis_url)
+        self.client = _client(redis_url)
         session = uuid.uuid4().hex
         self.slots = [RemoteSlot(self.client, prefix, session, i) for i in range(num_slots)]
         for i, size in enumerate(self.sizes):
@@ -175,8 +187,9 @@ class RemoteVecEnv(_WorkerVecEnv):
             slot.send(msg)
         replies = []
         for slot in self.slots:
-            value = slot.recv(STEP_TIMEOUT_S).get("value")
-            if not isinstance(value, dict):
+            msg = slot.recv(STEP_TIMEOUT_S)
+            value = msg.get("value")
+            if msg.get("kind") != "message" or not isinstance(value, dict):
                 raise RolloutError("a simulation worker sent malformed data")
             replies.append(value)
         return replies

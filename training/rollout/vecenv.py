@@ -17,7 +17,7 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from training.rollout.envs import EnvRunner, EnvSpec
-from training.sandbox import SandboxCrashed, SandboxLimits, SandboxProcess
+from training.sandbox import SandboxCrashed, SandboxLimits, SandboxProcess, checked
 
 ROLLOUT_LIMITS = SandboxLimits(
     per_call_seconds=1.0,
@@ -29,6 +29,12 @@ ROLLOUT_LIMITS = SandboxLimits(
 """A rollout worker: a second per reward call, 3 GiB more than its imports, a day of CPU."""
 
 STEP_TIMEOUT_S = 60.0
+#: The keys of a compact info (training.rollout.envs.compact_info) a worker may send.
+INFO_KEYS = frozenset(
+    {"status", "progress", "lap", "trace", "TimeLimit.truncated", "lap_times", "frame",
+     "terminal_observation", "episode_entry"}
+)  # fmt: skip
+MAX_FRAME_BYTES = 4 << 20
 
 
 class RolloutError(RuntimeError):
@@ -136,9 +142,7 @@ class _WorkerVecEnv(_RunnerVecEnv):
 
     def _obs(self, part: Any, size: int) -> np.ndarray:
         shape = (size, *self.observation_space.shape)
-        if not isinstance(part, np.ndarray) or part.dtype != np.uint8 or part.shape != shape:
-            raise RolloutError("a simulation worker sent observations of the wrong shape")
-        return part
+        return checked.array(part, "observations", dtype=np.uint8, shape=shape)
 
     def reset(self) -> np.ndarray:
         seeds, options, msgs, start = self._seeds, self._options, [], 0
@@ -149,9 +153,14 @@ class _WorkerVecEnv(_RunnerVecEnv):
         self._seeds = [None] * self.num_envs
         self._reset_options()
         replies = self._exchange(msgs)
-        return np.concatenate(
-            [self._obs(r.get("obs"), s) for r, s in zip(replies, self.sizes, strict=True)]
-        )
+        try:
+            parts = [
+                self._obs(checked.mapping(r, "reset reply").get("obs"), s)
+                for r, s in zip(replies, self.sizes, strict=True)
+            ]
+        except checked.Malformed as exc:
+            raise RolloutError(f"a simulation worker sent malformed data ({exc})") from None
+        return np.concatenate(parts)
 
     def step_wait(self):
         actions = self._actions
@@ -162,26 +171,56 @@ class _WorkerVecEnv(_RunnerVecEnv):
             start += size
         replies = self._exchange(msgs)
         obs, rewards, dones, infos = [], [], [], []
-        for reply, size in zip(replies, self.sizes, strict=True):
-            obs.append(self._obs(reply.get("obs"), size))
-            r = np.asarray(reply.get("rewards"), dtype=np.float32)
-            d = np.asarray(reply.get("dones"), dtype=bool)
-            info = reply.get("infos")
-            if (
-                r.shape != (size,)
-                or d.shape != (size,)
-                or not isinstance(info, list)
-                or len(info) != size
-            ):
-                raise RolloutError("a simulation worker sent a malformed step")
-            for item in info:
-                term = item.get("terminal_observation") if isinstance(item, dict) else None
-                if term is not None:
-                    self._obs(term[None], 1)
-            rewards.append(r)
-            dones.append(d)
-            infos.extend(info)
+        try:
+            for reply, size in zip(replies, self.sizes, strict=True):
+                reply = checked.mapping(reply, "step reply")
+                obs.append(self._obs(reply.get("obs"), size))
+                rewards.append(checked.rewards(reply.get("rewards"), "rewards", size=size))
+                dones.append(checked.array(reply.get("dones"), "dones", dtype=bool, shape=(size,)))
+                info = reply.get("infos")
+                if not isinstance(info, list) or len(info) != size:
+                    raise checked.Malformed("infos: expected one per env")
+                infos.extend(self._info(item) for item in info)
+        except checked.Malformed as exc:
+            raise RolloutError(f"a simulation worker sent malformed data ({exc})") from None
         return np.concatenate(obs), np.concatenate(rewards), np.concatenate(dones), infos
+
+    def _info(self, item: Any) -> dict:
+        """One env's compact info (:func:`training.rollout.envs.compact_info`), checked."""
+        info = checked.mapping(item, "info")
+        unknown = set(info) - INFO_KEYS
+        if unknown:
+            raise checked.Malformed(f"info: unexpected keys {sorted(unknown)[:3]}")
+        checked.text(info.get("status"), "info status", limit=64)
+        checked.number(info.get("progress"), "info progress", bound=1e6)
+        checked.integer(info.get("lap", 1), "info lap", high=10_000)
+        if info.get("trace") is not None:
+            checked.scalars(info["trace"], "info trace")
+        if "lap_times" in info:
+            checked.scalars(info["lap_times"], "info lap_times", limit=10_000)
+        if type(info.get("TimeLimit.truncated", True)) is not bool:
+            raise checked.Malformed("info TimeLimit.truncated: expected a bool")
+        if info.get("terminal_observation") is not None:
+            term = self._obs(info["terminal_observation"][None], 1)
+            info["terminal_observation"] = term[0]
+        if info.get("episode_entry") is not None:
+            entry = checked.mapping(info["episode_entry"], "episode entry")
+            checked.scalars(list(entry.values()), "episode entry", limit=64)
+        if info.get("frame") is not None:
+            self._frame(info["frame"])
+        return info
+
+    @staticmethod
+    def _frame(value: Any) -> None:
+        frame = checked.mapping(value, "frame")
+        for key in ("camera", "chase"):
+            jpeg = frame.get(key)
+            if not isinstance(jpeg, np.ndarray) or jpeg.dtype != np.uint8 or jpeg.ndim != 1:
+                raise checked.Malformed(f"frame {key}: expected JPEG bytes")
+            if jpeg.size > MAX_FRAME_BYTES:
+                raise checked.Malformed(f"frame {key}: over {MAX_FRAME_BYTES} bytes")
+        checked.number(frame.get("progress"), "frame progress", bound=1e6)
+        checked.integer(frame.get("lap"), "frame lap", high=10_000)
 
 
 class SandboxedVecEnv(_WorkerVecEnv):

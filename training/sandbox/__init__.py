@@ -9,6 +9,7 @@ Public API::
     SandboxedReward(source)  # per-call IPC
     check_source(source) -> list[RewardError]
     isolation_support() -> dict[str, str]
+    missing_requirements(layers) -> list[Requirement]   # fail closed: see requirements.py
 
 A target is ``fn(ctx: SandboxContext)``; it runs after lock-down with ``ctx.reward(params)``
 (the guarded reward callable), ``ctx.args``, ``ctx.prepared`` (from the optional ``prepare``
@@ -24,6 +25,7 @@ from training.sandbox.errors import (
     SandboxProtocolError,
     SandboxStartError,
     SandboxTimeout,
+    SandboxUnavailable,
 )
 from training.sandbox.limits import VALIDATION_LIMITS, SandboxLimits
 from training.sandbox.oneshot import (
@@ -32,8 +34,15 @@ from training.sandbox.oneshot import (
     SandboxedReward,
     evaluate_reward,
     isolation_support,
+    run_sandboxed,
 )
-from training.sandbox.process import SandboxMessage, SandboxProcess, run_sandboxed
+from training.sandbox.process import SandboxMessage, SandboxProcess
+from training.sandbox.requirements import (
+    Requirement,
+    describe_missing,
+    missing_requirements,
+    weak_sandbox_allowed,
+)
 from training.sandbox.static import MAX_SOURCE_CHARS, check_source
 
 __all__ = [
@@ -42,6 +51,7 @@ __all__ = [
     "EvaluationResult",
     "RewardError",
     "RewardFunctionError",
+    "Requirement",
     "RewardOutcome",
     "SandboxContext",
     "SandboxCrashed",
@@ -52,9 +62,13 @@ __all__ = [
     "SandboxProtocolError",
     "SandboxStartError",
     "SandboxTimeout",
+    "SandboxUnavailable",
     "SandboxedReward",
     "check_source",
+    "describe_missing",
     "evaluate_reward",
     "isolation_support",
+    "missing_requirements",
     "run_sandboxed",
+    "weak_sandbox_allowed",
 ]

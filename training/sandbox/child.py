@@ -2,8 +2,10 @@
 
 Sequence: clean environment, close inherited fds, new namespaces (while single-threaded),
 read the job, import the allowed libraries and the target, run the target's ``prepare``,
-apply rlimits, no_new_privs, Landlock and seccomp, then load the user's module and run the
-target with the guarded reward callable. Nothing here trusts the user code: after it has run,
+apply rlimits, no_new_privs, Landlock and seccomp, check that every protection the user code
+must not escape is in force (:mod:`training.sandbox.requirements`; else refuse, fail closed),
+report the layers, then load the user's module and run the target with the guarded reward
+callable. Nothing here trusts the user code: after it has run,
 the parent treats everything this process says as untrusted.
 """
 
@@ -18,11 +20,12 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from training.sandbox import landlock, lockdown
+from training.sandbox import landlock, lockdown, seccomp
 from training.sandbox.errors import RewardFunctionError
 from training.sandbox.guard import RewardCallable, install_output_capture, load_reward_function
 from training.sandbox.limits import SandboxLimits
 from training.sandbox.protocol import read_message_blocking, write_message
+from training.sandbox.requirements import apply_simulation, missing_requirements
 
 PR_SET_PDEATHSIG = 1
 HEARTBEAT_BYTES = 4096
@@ -126,6 +129,7 @@ def main(argv: list[str]) -> None:
 def _main(argv: list[str]) -> None:
     ctl_in, out, hb_fd, parent_pid = (int(a) for a in argv)
     _die_with_parent(parent_pid)
+    caller_uid = os.getuid()  # before the user namespace maps it to "nobody"
     layers = {"environment": lockdown.ACTIVE}
     lockdown.clean_environment()
     lockdown.close_inherited_fds({ctl_in, out, hb_fd})
@@ -144,6 +148,7 @@ def _main(argv: list[str]) -> None:
     has_landlock = landlock.abi_version() > 0 and "landlock" not in skip
     for name in PREIMPORTS + (() if has_landlock else PREIMPORTS_NO_LANDLOCK):
         importlib.import_module(name)
+    seccomp.library()  # loaded while its file can still be read
     target = resolve(job["target"])
     prepared = resolve(job["prepare"])(job["args"]) if job.get("prepare") else None
     layers.update(
@@ -153,11 +158,20 @@ def _main(argv: list[str]) -> None:
             open_files=limits.open_files,
             allow_threads=limits.allow_threads,
             read_paths=limits.read_paths,
+            caller_uid=caller_uid,
             skip=skip,
         )
     )
     guards = bool(job.get("python_guards", True))
     layers["python_guards"] = lockdown.ACTIVE if guards else "disabled (test only)"
+    layers["cgroup_pids"] = str(job.get("cgroup_pids", "unavailable: not reported"))
+    apply_simulation(layers, tuple(job.get("simulate_missing") or ()))
+    # Fail closed: nothing of the user's is loaded unless every protection is in force.
+    missing = [r.name for r in missing_requirements(layers)]
+    if missing and not job.get("allow_weak"):
+        write_message(out, {"kind": "refused", "missing": missing, "layers": layers})
+        os._exit(0)
+    write_message(out, {"kind": "locked", "layers": layers})
     output = install_output_capture(limits.max_output_chars)
     heartbeat[0] = 0
     heartbeat[1] = time.monotonic_ns()

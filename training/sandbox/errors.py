@@ -60,6 +60,18 @@ class SandboxStartError(SandboxError):
     """The sandbox process could not be started or did not become ready."""
 
 
+class SandboxUnavailable(SandboxStartError):
+    """This machine cannot give the sandbox a protection it needs, so no user code was run.
+
+    The message is for the operator: what is missing and which kernel feature or container
+    setting provides it. ``missing`` names the :mod:`training.sandbox.requirements`.
+    """
+
+    def __init__(self, message: str, missing: tuple[str, ...]) -> None:
+        super().__init__(message)
+        self.missing = missing
+
+
 class SandboxCrashed(SandboxError):
     """The sandbox process died: killed by a limit, a signal, or its own doing.
 

@@ -59,6 +59,44 @@ def _refuse(kind: str, message: str) -> RewardFunctionError:
     return RewardFunctionError(RewardError(kind, message))  # type: ignore[arg-type]
 
 
+class ModuleProxy:
+    """What user code gets for an allowed module: attribute reads are checked like ``a.b``
+    in the source, and a module reached as an attribute (``np.lib.format``, a library's own
+    ``os`` or ``pickle``) must itself be allowed, so a refused module is refused however it
+    is reached. Writes are refused (user code cannot patch a library for the next car)."""
+
+    __slots__ = ("_module",)
+
+    def __init__(self, module: types.ModuleType) -> None:
+        object.__setattr__(self, "_module", module)
+
+    def __getattr__(self, name: str) -> Any:
+        _check_attr(name)
+        value = getattr(object.__getattribute__(self, "_module"), name)
+        return _exposed(value)
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError("modules cannot be changed")
+
+    def __delattr__(self, name: str) -> None:
+        raise AttributeError("modules cannot be changed")
+
+    def __dir__(self) -> list[str]:
+        return [n for n in dir(object.__getattribute__(self, "_module")) if n[0] != "_"]
+
+    def __repr__(self) -> str:
+        return f"<module {object.__getattribute__(self, '_module').__name__!r}>"
+
+
+def _exposed(value: Any) -> Any:
+    """``value`` as user code may see it: modules only when allowed, and behind a proxy."""
+    if isinstance(value, types.ModuleType):
+        if module_refused(value.__name__):
+            raise AttributeError(f"access to module '{value.__name__}' is not allowed")
+        return ModuleProxy(value)
+    return value
+
+
 def _restricted_import(name: str, globals=None, locals=None, fromlist=(), level=0):  # noqa: ANN001,ANN202
     if level or module_refused(name):
         raise ImportError(f"import of '{name}' is not allowed")
@@ -67,7 +105,10 @@ def _restricted_import(name: str, globals=None, locals=None, fromlist=(), level=
             if item == "*" and name.split(".")[0] in ("math", "random"):
                 continue
             raise ImportError(f"import of '{name}.{item}' is not allowed")
-    return builtins.__import__(name, globals, locals, fromlist, 0)
+    module = builtins.__import__(name, globals, locals, fromlist, 0)
+    if fromlist and "*" in fromlist:  # the names are copied out of the module by the caller
+        return module
+    return ModuleProxy(module)
 
 
 def _check_attr(name: object) -> None:
@@ -77,7 +118,10 @@ def _check_attr(name: object) -> None:
 
 def _getattr(obj: object, name: str, *default: object) -> object:
     _check_attr(name)
-    return getattr(obj, name, *default)
+    if isinstance(obj, str) and name in ("format", "format_map"):
+        # A template built at run time would escape the static check of its fields.
+        raise AttributeError(f"'{name}' is allowed on a string literal only")
+    return _exposed(getattr(obj, name, *default))
 
 
 def _hasattr(obj: object, name: str) -> bool:

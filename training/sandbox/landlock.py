@@ -23,6 +23,8 @@ FS_READ_DIR = 1 << 3
 _FS_ALL_BY_ABI = {1: (1 << 13) - 1, 2: (1 << 14) - 1, 3: (1 << 15) - 1, 5: (1 << 16) - 1}
 NET_BIND_TCP, NET_CONNECT_TCP = 1 << 0, 1 << 1
 SCOPE_ABSTRACT_UNIX_SOCKET, SCOPE_SIGNAL = 1 << 0, 1 << 1
+#: First ABI that scopes signals and abstract unix sockets.
+SCOPE_ABI = 6
 
 
 class _RulesetAttr(ctypes.Structure):
@@ -74,7 +76,7 @@ def restrict_to_read_only(paths: list[str]) -> str | None:
     if abi >= 4:
         attr.handled_access_net = NET_BIND_TCP | NET_CONNECT_TCP
         size = 16
-    if abi >= 6:
+    if abi >= SCOPE_ABI:
         attr.scoped = SCOPE_ABSTRACT_UNIX_SOCKET | SCOPE_SIGNAL
         size = 24
     ruleset = libc.syscall(

@@ -120,6 +120,20 @@ def set_no_new_privs() -> str | None:
     return None
 
 
+def probe_limits_locked() -> str | None:
+    """None when the hard limits cannot be raised again (tried on RLIMIT_NOFILE, then
+    lowered back, which is always allowed); else why not."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard == resource.RLIM_INFINITY:
+        return "the limits were not set"
+    try:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard + 1))
+    except (ValueError, OSError):
+        return None
+    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+    return "the process can raise its hard limits (CAP_SYS_RESOURCE)"
+
+
 def default_read_paths(extra: tuple[str, ...] = ()) -> list[str]:
     """Directories a locked-down child may read: the Python installation and its packages,
     our own packages, system libraries (for late imports of extension modules), and ``extra``."""
@@ -144,9 +158,12 @@ def apply_all(
     open_files: int,
     allow_threads: bool,
     read_paths: tuple[str, ...],
+    caller_uid: int,
     skip: frozenset[str] = frozenset(),
 ) -> LayerReport:
-    """Apply rlimits, no_new_privs, Landlock, seccomp (after imports); report each.
+    """Apply rlimits, no_new_privs, Landlock, seccomp (after imports); report each, and the
+    protections they add up to: ``signal_scope`` (Landlock ABI 6), ``nproc_limit``
+    (RLIMIT_NPROC binds a ``caller_uid`` other than root) and ``limits_locked`` (a probe).
 
     ``skip`` names layers not to apply (tests use it to show each layer holds alone).
     """
@@ -172,6 +189,8 @@ def apply_all(
             threads=allow_threads,
         ),
     )
+    nproc_binds = report["rlimits"] == ACTIVE and not allow_threads and caller_uid != 0
+    record("nproc_limit", None if nproc_binds else "root (or threads allowed) is not bound")
     nnp = set_no_new_privs()
     record("no_new_privs", nnp)
     if nnp is None:
@@ -187,4 +206,8 @@ def apply_all(
     else:
         record("landlock", "needs no_new_privs")
         record("seccomp", "needs no_new_privs")
+    scoped = report["landlock"] == ACTIVE and landlock.abi_version() >= landlock.SCOPE_ABI
+    record("signal_scope", None if scoped else "needs Landlock ABI 6")
+    locked = probe_limits_locked() if report["rlimits"] == ACTIVE else "the limits were not set"
+    record("limits_locked", locked)
     return report

@@ -1,17 +1,26 @@
-"""Evaluating a reward function on a list of params dicts (validation, tools), and the small
-targets the sandbox runs for it, for the per-call service and for the benchmark."""
+"""Evaluating a reward function on a list of params dicts (validation, tools), running a target
+to completion (:func:`run_sandboxed`), and the small targets the sandbox runs for these, for
+the per-call service and for the benchmark."""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from training.sandbox import checked
 from training.sandbox.child import SandboxContext
-from training.sandbox.errors import RewardError, RewardFunctionError, SandboxError
+from training.sandbox.errors import (
+    RewardError,
+    RewardFunctionError,
+    SandboxError,
+    SandboxProtocolError,
+    SandboxUnavailable,
+)
 from training.sandbox.guard import copy_params
 from training.sandbox.limits import VALIDATION_LIMITS, SandboxLimits
-from training.sandbox.process import SandboxProcess
+from training.sandbox.process import CALL_SLACK_S, SandboxProcess
 
 EVALUATE_TARGET = "training.sandbox.oneshot:evaluate_main"
 SERVE_TARGET = "training.sandbox.oneshot:serve_main"
@@ -31,6 +40,8 @@ class EvaluationResult:
     outcomes: list[RewardOutcome]
     layers: dict[str, str] = field(default_factory=dict)
     output: str = ""
+    #: Protections missing but accepted by RACECRAFT_ALLOW_WEAK_SANDBOX; empty normally.
+    weak: tuple[str, ...] = ()
 
     @property
     def errors(self) -> list[RewardError]:
@@ -72,10 +83,15 @@ def timing_main(ctx: SandboxContext) -> dict[str, float]:
 
 def isolation_support(limits: SandboxLimits | None = None) -> dict[str, str]:
     """Start a sandbox with a trivial reward and return its report of isolation layers:
-    ``{layer: "active" | "unavailable: <reason>" | ...}``."""
+    ``{layer: "active" | "unavailable: <reason>" | ...}``; it never refuses (our own code),
+    see :func:`~training.sandbox.requirements.missing_requirements` for the verdict."""
     source = "def reward_function(params):\n    return 1.0\n"
     sandbox = SandboxProcess(
-        target=EVALUATE_TARGET, reward_source=source, args={"params": []}, limits=limits
+        target=EVALUATE_TARGET,
+        reward_source=source,
+        args={"params": []},
+        limits=limits,
+        allow_weak=True,
     )
     try:
         return sandbox.start()
@@ -87,6 +103,22 @@ def _crash_error(exc: SandboxError) -> RewardError:
     return RewardError("TEST_FAILURE", str(exc))
 
 
+def evaluation_seconds(limits: SandboxLimits, calls: int) -> float:
+    """The overall limit of an evaluation on the parent's clock: start-up, then each call
+    with its limit and slack (a restart after a killed call fits in that slack)."""
+    return limits.start_seconds + calls * (limits.per_call_seconds + CALL_SLACK_S)
+
+
+def _checked_outcome(value: Any, offset: int, size: int) -> tuple[int, RewardOutcome]:
+    """``(index, outcome)`` of one evaluate_main message; raises Malformed otherwise."""
+    msg = checked.mapping(value, "reward message")
+    i = offset + checked.index(msg.get("i"), size - offset, "reward index")
+    if "error" in msg:
+        err = checked.mapping(msg["error"], "reward error")
+        return i, RewardOutcome(None, RewardError.from_dict(err))
+    return i, RewardOutcome(checked.number(msg.get("value"), "reward value"))
+
+
 def evaluate_reward(
     source: str,
     params_list: list[dict[str, Any]],
@@ -94,18 +126,35 @@ def evaluate_reward(
     limits: SandboxLimits = VALIDATION_LIMITS,
     python_guards: bool = True,
     disabled_layers: tuple[str, ...] = (),
+    deadline_seconds: float | None = None,
 ) -> EvaluationResult:
     """Call ``reward_function`` of ``source`` on each params dict, in a sandbox.
 
-    Each call has ``limits.per_call_seconds``. An error in one call does not stop the others;
-    a call that kills the sandbox (timeout, crash) is reported and the remaining calls run in
-    a fresh sandbox. A module that does not load gives the same error for every call.
+    Each call has ``limits.per_call_seconds`` and the whole evaluation ``deadline_seconds``
+    (default :func:`evaluation_seconds`), both on this process's clock. An error in one call
+    does not stop the others; a call that kills the sandbox (timeout, crash, malformed data)
+    is reported and the remaining calls run in a fresh sandbox, while time remains. A module
+    that does not load gives the same error for every call.
+    Raises SandboxUnavailable (before running any user code) when this machine cannot isolate
+    it and weak isolation was not accepted.
     """
-    outcomes: list[RewardOutcome | None] = [None] * len(params_list)
+    n = len(params_list)
+    overall = evaluation_seconds(limits, n) if deadline_seconds is None else deadline_seconds
+    deadline = time.monotonic() + overall
+    outcomes: list[RewardOutcome | None] = [None] * n
     layers: dict[str, str] = {}
+    weak: tuple[str, ...] = ()
     output: list[str] = []
     start = 0
-    while start < len(params_list):
+    while start < n:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            late = RewardError(
+                "TEST_FAILURE",
+                f"Not run: the evaluation passed its overall limit of {overall:g} s.",
+            )
+            outcomes[start:] = [o or RewardOutcome(None, late) for o in outcomes[start:]]
+            break
         sandbox = SandboxProcess(
             target=EVALUATE_TARGET,
             reward_source=source,
@@ -113,42 +162,80 @@ def evaluate_reward(
             limits=limits,
             python_guards=python_guards,
             disabled_layers=disabled_layers,
+            deadline_seconds=left,
         )
         try:
             layers = sandbox.start()
+            weak = sandbox.weak
+            per_call = limits.per_call_seconds + CALL_SLACK_S
             while True:
-                msg = sandbox.recv()
+                msg = sandbox.recv(per_call, late=sandbox.late_words("reward_function"))
                 if msg.kind == "result":
                     output.append(msg.output)
                     break
-                i = start + int(msg.value["i"])
-                err = msg.value.get("error")
-                outcomes[i] = (
-                    RewardOutcome(None, RewardError.from_dict(err))
-                    if isinstance(err, dict)
-                    else RewardOutcome(float(msg.value["value"]))
-                )
-            start = len(params_list)
+                i, outcome = _checked_outcome(msg.value, start, n)
+                outcomes[i] = outcome
+            if any(o is None for o in outcomes[start:]):  # "finished" without every answer
+                raise checked.Malformed("the sandbox finished early")
+            start = n
         except RewardFunctionError as exc:  # the module did not load
             output.append(sandbox.output)
             return EvaluationResult(
-                [RewardOutcome(None, exc.error)] * len(params_list), layers, "".join(output)
+                [RewardOutcome(None, exc.error)] * n, layers, "".join(output), weak
             )
-        except (SandboxError, KeyError, TypeError, ValueError) as exc:
-            first = next((j for j in range(start, len(params_list)) if outcomes[j] is None), start)
+        except SandboxUnavailable:
+            raise
+        except (SandboxError, checked.Malformed) as exc:
+            first = next((j for j in range(start, n) if outcomes[j] is None), start)
             error = (
                 _crash_error(exc)
                 if isinstance(exc, SandboxError)
-                else RewardError(
-                    "TEST_FAILURE", "The reward function's sandbox sent malformed data."
-                )
+                else RewardError("TEST_FAILURE", checked.MALFORMED)
             )
             outcomes[first] = RewardOutcome(None, error)
             start = first + 1
         finally:
             sandbox.close()
     done = [o if o is not None else RewardOutcome(None, None) for o in outcomes]
-    return EvaluationResult(done, layers, "".join(output))
+    return EvaluationResult(done, layers, "".join(output), weak)
+
+
+def run_sandboxed(
+    *,
+    target: str,
+    reward_source: str,
+    args: Any = None,
+    limits: SandboxLimits | None = None,
+    prepare: str | None = None,
+    on_message: Callable[[Any], None] | None = None,
+    timeout: float | None = None,
+    python_guards: bool = True,
+) -> Any:
+    """Run ``target(ctx)`` in a sandbox child and return what it returns.
+
+    Messages the target sends go to ``on_message``. ``timeout`` bounds the whole run (seconds).
+    Raises RewardFunctionError or SandboxError (see :class:`SandboxProcess`).
+    """
+    sandbox = SandboxProcess(
+        target=target,
+        reward_source=reward_source,
+        args=args,
+        limits=limits,
+        prepare=prepare,
+        python_guards=python_guards,
+    )
+    deadline = None if timeout is None else time.monotonic() + timeout
+    sandbox.start()
+    try:
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            msg = sandbox.recv(left)
+            if msg.kind == "result":
+                return msg.value
+            if on_message is not None:
+                on_message(msg.value)
+    finally:
+        sandbox.close()
 
 
 class SandboxedReward:
@@ -161,12 +248,17 @@ class SandboxedReward:
     def __init__(self, source: str, limits: SandboxLimits | None = None) -> None:
         self._sandbox = SandboxProcess(target=SERVE_TARGET, reward_source=source, limits=limits)
         self.layers = self._sandbox.start()
-        self._timeout = self._sandbox.limits.per_call_seconds + 5.0
+        self._timeout = self._sandbox.limits.per_call_seconds + CALL_SLACK_S
 
     def __call__(self, params: dict[str, Any]) -> float:
         self._sandbox.send(params)
-        msg = self._sandbox.recv(self._timeout)
-        return float(msg.value)
+        late = self._sandbox.late_words("reward_function")
+        msg = self._sandbox.recv(self._timeout, late=late)
+        try:
+            return checked.number(msg.value, "reward value")
+        except checked.Malformed:
+            self._sandbox.close()
+            raise SandboxProtocolError(checked.MALFORMED) from None
 
     def close(self) -> None:
         self._sandbox.close()

@@ -97,8 +97,14 @@ FORBIDDEN_ATTRIBUTES: frozenset[str] = frozenset(
         "tb_next",
         "co_code",
         "with_traceback",
+        # attribute access by name, in functions that outlive the getattr guard
+        "attrgetter",
+        "methodcaller",
     }
 )
+
+#: Builtins that take an attribute name as their second argument (checked like ``a.name``).
+ATTRIBUTE_FUNCTIONS: frozenset[str] = frozenset({"getattr", "setattr", "delattr", "hasattr"})
 
 #: Dunder names a reward function may read as plain names.
 ALLOWED_DUNDER_NAMES: frozenset[str] = frozenset({"__name__", "__doc__", "__file__"})

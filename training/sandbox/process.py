@@ -1,14 +1,19 @@
 """Parent side: start a sandbox child, talk to it, watch it, and clean up after it.
 
 The child is a fresh interpreter (never a fork of the caller, whose memory may hold secrets)
-with an empty environment. A watchdog thread in the parent reads the heartbeat the child's
-reward callable writes into shared memory and kills the child when a call overruns its
-wall-clock limit; signals inside the child are not relied upon.
+with an empty environment. Time is measured only on the parent's monotonic clock, so nothing
+the child writes can extend it: every wait for a message has a deadline (the caller's, and
+``deadline_seconds`` over the whole run), and a watchdog thread kills the child's process
+group (SIGKILL) when the overall deadline passes or a call it sees start (the heartbeat in
+shared memory says only *that* a call is under way) lasts longer than the per-call limit. A
+child that forges or stops its heartbeat is still caught by the message deadlines. Signals
+inside the child are not relied upon.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import mmap
 import os
 import signal
@@ -16,7 +21,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,13 +35,26 @@ from training.sandbox.errors import (
     SandboxProtocolError,
     SandboxStartError,
     SandboxTimeout,
+    SandboxUnavailable,
 )
 from training.sandbox.limits import SandboxLimits
 from training.sandbox.lockdown import CHILD_ENV
 from training.sandbox.protocol import FrameReader, ProtocolError, encode
+from training.sandbox.requirements import (
+    REQUIREMENT_NAMES,
+    REQUIREMENTS,
+    describe_missing,
+    missing_requirements,
+    simulated_missing,
+    weak_sandbox_allowed,
+)
+
+log = logging.getLogger(__name__)
 
 PACKAGE_ROOT = str(Path(__file__).resolve().parents[2])
 WATCHDOG_PERIOD_S = 0.02
+#: Added to the per-call limit for a reply to arrive (encoding, a loaded machine).
+CALL_SLACK_S = 2.0
 
 _SIGNAL_WORDS = {
     signal.SIGKILL: "was killed (SIGKILL): the CPU-time limit, or the system ran out of memory",
@@ -85,8 +102,15 @@ class SandboxProcess:
         prepare: str | None = None,
         python_guards: bool = True,
         disabled_layers: tuple[str, ...] = (),
+        allow_weak: bool | None = None,
+        deadline_seconds: float | None = None,
     ) -> None:
         self.target = target
+        self.deadline_seconds = deadline_seconds
+        self._deadline: float | None = None
+        self.allow_weak = weak_sandbox_allowed() if allow_weak is None else allow_weak
+        #: Protections missing but accepted (``allow_weak``); empty on a fully isolated run.
+        self.weak: tuple[str, ...] = ()
         self.disabled_layers = disabled_layers
         self.source = reward_source
         self.args = args
@@ -97,12 +121,15 @@ class SandboxProcess:
         self.output = ""
         self._proc: subprocess.Popen[bytes] | None = None
         self._kill_reason: str | None = None
+        self._overran = False  # killed for time: the error is a SandboxTimeout
         self._stop = threading.Event()
         self._watchdog: threading.Thread | None = None
         self._finished = False
 
     # -- life cycle --------------------------------------------------------------------------
     def start(self) -> dict[str, str]:
+        if self.deadline_seconds is not None:
+            self._deadline = time.monotonic() + self.deadline_seconds
         hb_fd = os.memfd_create("racecraft-sandbox-heartbeat", os.MFD_CLOEXEC)
         os.ftruncate(hb_fd, HEARTBEAT_BYTES)
         self._hb_map = mmap.mmap(hb_fd, HEARTBEAT_BYTES)
@@ -154,22 +181,45 @@ class SandboxProcess:
             "target": self.target, "prepare": self.prepare, "args": self.args,
             "limits": self.limits.to_dict(), "source": self.source,
             "python_guards": self.python_guards, "disabled_layers": list(self.disabled_layers),
+            "cgroup_pids": cgroup_state, "allow_weak": self.allow_weak,
+            "simulate_missing": list(simulated_missing()),
         }  # fmt: skip
         try:
             self._write(job)
-            msg = self._next(self.limits.start_seconds, "starting")
+            self._locked(self._next(self.limits.start_seconds, "starting"))
+            msg = self._next(
+                self.limits.per_call_seconds + CALL_SLACK_S,
+                "loading the module",
+                late=self.late_words("loading the module"),
+            )
         except BaseException:
             self.close()
             raise
         if msg.get("kind") != "ready":
             self.close()
             raise SandboxProtocolError("the sandbox did not start as expected")
-        layers = msg.get("layers")
-        self.layers = (
-            {str(k): str(v) for k, v in layers.items()} if isinstance(layers, dict) else {}
-        )
-        self.layers["cgroup_pids"] = cgroup_state
         return self.layers
+
+    def _locked(self, msg: dict[str, Any]) -> None:
+        """Take the child's layer report, sent after lock-down and before any user code; refuse
+        (fail closed) when a protection is missing, unless weak isolation was accepted."""
+        kind = msg.get("kind")
+        layers = msg.get("layers")
+        if kind not in ("locked", "refused") or not isinstance(layers, dict):
+            raise SandboxProtocolError("the sandbox did not start as expected")
+        self.layers = {str(k): str(v)[:300] for k, v in layers.items()}
+        missing = missing_requirements(self.layers)
+        if kind == "refused":  # the child's own names, kept only when they are ours
+            named = msg.get("missing")
+            names = set(named) & REQUIREMENT_NAMES if isinstance(named, list) else set()
+            missing = [r for r in REQUIREMENTS if r.name in names] or missing
+            missing = missing or list(REQUIREMENTS)  # a refusal we cannot read: trust nothing
+        names = tuple(r.name for r in missing)
+        if missing and (kind == "refused" or not self.allow_weak):
+            raise SandboxUnavailable(describe_missing(missing), names)
+        if missing:
+            self.weak = names
+            log.info("reward sandbox runs with weakened isolation: missing %s", names)
 
     def close(self, grace_seconds: float = 0.0) -> None:
         """Stop the child (after ``grace_seconds`` for a clean exit), reap it, stop the
@@ -211,11 +261,16 @@ class SandboxProcess:
         except OSError:
             self._raise_dead("receiving a message")
 
-    def recv(self, timeout: float | None = None) -> SandboxMessage:
-        """Next message from the child; raises on errors, death or ``timeout`` seconds."""
+    def late_words(self, what: str) -> str:
+        """The user's words for a call that overran: "<what> took longer than N s per call"."""
+        return f"{what} took longer than {self.limits.per_call_seconds:g} s per call"
+
+    def recv(self, timeout: float | None = None, *, late: str | None = None) -> SandboxMessage:
+        """Next message from the child; raises on errors, death or ``timeout`` seconds (then
+        the child is killed and ``late``, if given, is the reason the user reads)."""
         if self._finished:
             raise SandboxError("the sandboxed target has already finished")
-        msg = self._next(timeout, "running")
+        msg = self._next(timeout, "running", late=late)
         kind = msg.get("kind")
         if kind == "message":
             return SandboxMessage("message", msg.get("value"))
@@ -223,8 +278,8 @@ class SandboxProcess:
             self._finished = True
             self.output = str(msg.get("output", ""))
             return SandboxMessage("result", msg.get("value"), self.output)
-        self._kill(None)
-        raise SandboxProtocolError("the sandbox sent a message of an unknown kind")
+        self._kill("it sent malformed data (a message of an unknown kind)")
+        raise SandboxProtocolError(self._describe_death())
 
     # -- internals ---------------------------------------------------------------------------
     def _write(self, obj: Any) -> None:
@@ -233,11 +288,26 @@ class SandboxProcess:
             n = os.write(self._to_child, data)
             data = data[n:]
 
-    def _next(self, timeout: float | None, doing: str) -> dict[str, Any]:
+    def _overall(self) -> str:
+        return f"it ran past its overall limit of {self.deadline_seconds:g} s"
+
+    def _next(
+        self, timeout: float | None, doing: str, *, late: str | None = None
+    ) -> dict[str, Any]:
+        wait = timeout
+        overall = False
+        if self._deadline is not None:
+            left = max(0.0, self._deadline - time.monotonic())
+            overall = wait is None or left < wait
+            wait = left if overall else wait
         try:
-            msg = self._reader.read(timeout)
+            msg = self._reader.read(wait)
         except TimeoutError:
-            self._kill(f"it gave no answer within {timeout:g} s while {doing}")
+            self._overran = True
+            if overall:
+                self._kill(self._overall())
+            else:
+                self._kill(late or f"it gave no answer within {timeout:g} s while {doing}")
             raise SandboxTimeout(self._describe_death()) from None
         except EOFError:
             self._raise_dead(doing)
@@ -267,9 +337,7 @@ class SandboxProcess:
             self._proc.wait(timeout=2.0)
         except subprocess.TimeoutExpired:
             self._kill("it closed its channel but did not exit")
-        err = (
-            SandboxTimeout if self._kill_reason and "limit" in self._kill_reason else SandboxCrashed
-        )
+        err = SandboxTimeout if self._overran else SandboxCrashed
         raise err(self._describe_death())
 
     def _describe_death(self) -> str:
@@ -296,20 +364,29 @@ class SandboxProcess:
             proc.kill()
 
     def _watch(self) -> None:
-        limit_ns = int(self.limits.per_call_seconds * 1e9)
+        """Kill the child past the overall deadline, or when a call has been under way for
+        longer than the per-call limit: durations on our clock, from when we first saw the
+        heartbeat change (its contents are the child's, so they only mark a call's start)."""
+        limit = self.limits.per_call_seconds
         proc = self._proc
         assert proc is not None
+        seen, since = (0, 0), time.monotonic()
         while not self._stop.wait(WATCHDOG_PERIOD_S):
             if proc.poll() is not None:
                 return
-            started = self._hb[1]
-            if started and time.monotonic_ns() - started > limit_ns:
-                step = self._hb[0]
+            now = time.monotonic()
+            if self._deadline is not None and now > self._deadline:
+                self._overran = True
+                self._kill(self._overall())
+                return
+            mark = (self._hb[0], self._hb[1])
+            if mark != seen:
+                seen, since = mark, now
+            if mark[1] and now - since > limit:
+                step = mark[0]
                 what = f"reward_function at step {step}" if step else "loading the module"
-                self._kill(
-                    f"{what} ran longer than the {self.limits.per_call_seconds:g} s "
-                    "wall-clock limit per call"
-                )
+                self._overran = True
+                self._kill(self.late_words(what))
                 return
 
     def _close_fds(self) -> None:
@@ -324,41 +401,3 @@ class SandboxProcess:
             hb.release()
             self._hb = None
             self._hb_map.close()
-
-
-def run_sandboxed(
-    *,
-    target: str,
-    reward_source: str,
-    args: Any = None,
-    limits: SandboxLimits | None = None,
-    prepare: str | None = None,
-    on_message: Callable[[Any], None] | None = None,
-    timeout: float | None = None,
-    python_guards: bool = True,
-) -> Any:
-    """Run ``target(ctx)`` in a sandbox child and return what it returns.
-
-    Messages the target sends go to ``on_message``. ``timeout`` bounds the whole run (seconds).
-    Raises RewardFunctionError or SandboxError (see :class:`SandboxProcess`).
-    """
-    sandbox = SandboxProcess(
-        target=target,
-        reward_source=reward_source,
-        args=args,
-        limits=limits,
-        prepare=prepare,
-        python_guards=python_guards,
-    )
-    deadline = None if timeout is None else time.monotonic() + timeout
-    sandbox.start()
-    try:
-        while True:
-            left = None if deadline is None else max(0.0, deadline - time.monotonic())
-            msg = sandbox.recv(left)
-            if msg.kind == "result":
-                return msg.value
-            if on_message is not None:
-                on_message(msg.value)
-    finally:
-        sandbox.close()

@@ -1,4 +1,17 @@
-"""A seccomp-bpf filter written directly (ctypes + the seccomp syscall), no libseccomp.
+"""The seccomp filter, built by libseccomp for whatever CPU this runs on (x86_64, aarch64, ...).
+
+Why libseccomp, called through ctypes: it is the kept library every container runtime uses
+(Docker, podman, systemd); it owns the per-architecture syscall tables, the BPF generation,
+the architecture check and x86's x32 trap, so one list of syscall *names* works on x86_64 and
+aarch64 alike (the hand-made BPF this replaces knew x86_64 numbers only). Its C library is
+part of every Debian/Ubuntu system (``libseccomp2``: apt and systemd depend on it), so there is
+nothing to build. We bind its stable C API directly (eight functions) rather than through
+``pyseccomp``: that package (last released 2021) runs ``ldconfig`` in a subprocess when it is
+imported, which a child confined to a one-process cgroup cannot do; the official bindings
+(Debian's python3-seccomp) live outside the virtualenv. bubblewrap was not chosen: it is not
+installed everywhere, and the child already does what it would (namespaces, no_new_privs).
+Without libseccomp the layer reports itself unavailable and the sandbox fails closed
+(:mod:`training.sandbox.requirements`).
 
 The filter is a deny-list: everything not named here is allowed, because the child runs
 CPython, numpy and (for rollouts) PyBullet and torch, whose syscalls are many. What it refuses
@@ -13,9 +26,12 @@ CPython, numpy and (for rollouts) PyBullet and torch, whose syscalls are many. W
 - leaving or widening the box: unshare, setns, mount family, chroot, ptrace,
   process_vm_*, bpf, perf_event_open, io_uring (it bypasses seccomp), userfaultfd, keyctl,
   module loading, kexec, reboot, clock setting, memfd_create, open_by_handle_at;
+- its own limits and fate: setrlimit, prlimit64 with a new limit, and
+  prctl(PR_SET_PDEATHSIG) (it cannot stop dying with its parent);
 - signals to other processes: kill/tgkill only to the child itself.
 
-Only x86_64 is described; elsewhere :func:`install_filter` reports the layer as unavailable.
+A name the installed libseccomp does not know (a syscall newer than it) is skipped: Landlock
+still covers the filesystem ones; keeping libseccomp2 updated keeps the list whole.
 """
 
 from __future__ import annotations
@@ -23,135 +39,164 @@ from __future__ import annotations
 import ctypes
 import errno
 import os
-import platform
-import struct
+from functools import cache
 
-AUDIT_ARCH_X86_64 = 0xC000003E
-X32_SYSCALL_BIT = 0x40000000
-
-SECCOMP_RET_KILL_PROCESS = 0x80000000
-SECCOMP_RET_ERRNO = 0x00050000
-SECCOMP_RET_ALLOW = 0x7FFF0000
-SECCOMP_SET_MODE_FILTER = 1
-SECCOMP_FILTER_FLAG_TSYNC = 1
-NR_SECCOMP = 317
-
-BPF_LD_W_ABS = 0x20
-BPF_JEQ_K = 0x15
-BPF_JGE_K = 0x35
-BPF_JSET_K = 0x45
-BPF_RET_K = 0x06
-
+LIBRARY = "libseccomp.so.2"
+SCMP_ACT_ALLOW = 0x7FFF0000
+SCMP_FLTATR_CTL_TSYNC = 4
+SCMP_CMP_NE, SCMP_CMP_EQ, SCMP_CMP_MASKED_EQ = 1, 4, 7
+SCMP_ARCH_X86_64 = 0xC000003E
+SCMP_ARCH_AARCH64 = 0xC00000B7
 CLONE_THREAD = 0x00010000
-OPEN_WRITE_FLAGS = (
-    0o3 | 0o100 | 0o1000 | 0o2000 | 0o20000000
-)  # WRONLY|RDWR|CREAT|TRUNC|APPEND|TMPFILE
+PR_SET_PDEATHSIG = 1
+#: open flags that write: any one of them set refuses the open.
+OPEN_WRITE_FLAGS = (os.O_WRONLY, os.O_RDWR, os.O_CREAT, os.O_TRUNC, os.O_APPEND, 0o20000000)
 
-# x86_64 numbers (asm/unistd_64.h).
-DENIED_SYSCALLS: dict[str, int] = {
-    "fork": 57, "vfork": 58, "execve": 59, "execveat": 322,
-    "socket": 41, "connect": 42, "accept": 43, "bind": 49, "listen": 50, "socketpair": 53,
-    "accept4": 288,
-    "creat": 85, "unlink": 87, "unlinkat": 263, "rename": 82, "renameat": 264,
-    "renameat2": 316, "mkdir": 83, "mkdirat": 258, "rmdir": 84, "link": 86, "linkat": 265,
-    "symlink": 88, "symlinkat": 266, "chmod": 90, "fchmod": 91, "fchmodat": 268,
-    "fchmodat2": 452, "chown": 92, "fchown": 93, "lchown": 94, "fchownat": 260,
-    "truncate": 76, "ftruncate": 77, "mknod": 133, "mknodat": 259, "utime": 132,
-    "utimes": 235, "utimensat": 280, "futimesat": 261, "setxattr": 188, "lsetxattr": 189,
-    "fsetxattr": 190, "removexattr": 197, "lremovexattr": 198, "fremovexattr": 199,
-    "mount": 165, "umount2": 166, "pivot_root": 155, "chroot": 161, "open_tree": 428,
-    "move_mount": 429, "fsopen": 430, "fsconfig": 431, "fsmount": 432, "fspick": 433,
-    "mount_setattr": 442, "unshare": 272, "setns": 308, "ptrace": 101,
-    "process_vm_readv": 310, "process_vm_writev": 311, "process_madvise": 440,
-    "kexec_load": 246, "kexec_file_load": 320, "init_module": 175, "finit_module": 313,
-    "delete_module": 176, "bpf": 321, "perf_event_open": 298, "userfaultfd": 323,
-    "keyctl": 250, "add_key": 248, "request_key": 249, "io_uring_setup": 425,
-    "io_uring_enter": 426, "io_uring_register": 427, "memfd_create": 319, "memfd_secret": 447,
-    "tkill": 200, "rt_sigqueueinfo": 129, "rt_tgsigqueueinfo": 297, "pidfd_open": 434,
-    "pidfd_send_signal": 424, "pidfd_getfd": 438, "name_to_handle_at": 303,
-    "open_by_handle_at": 304, "fanotify_init": 300, "sethostname": 170,
-    "setdomainname": 171, "reboot": 169, "swapon": 167, "swapoff": 168, "acct": 163,
-    "settimeofday": 164, "clock_settime": 227, "adjtimex": 159, "clock_adjtime": 305,
-    "iopl": 172, "ioperm": 173, "quotactl": 179, "syslog": 103, "vhangup": 153,
-    "setuid": 105, "setgid": 106, "setreuid": 113, "setregid": 114, "setresuid": 117,
-    "setresgid": 119, "setgroups": 116, "capset": 126, "setsid": 112, "setpgid": 109,
-}  # fmt: skip
-NR_OPEN, NR_OPENAT, NR_OPENAT2 = 2, 257, 437
-NR_CLONE, NR_CLONE3 = 56, 435
-NR_KILL, NR_TGKILL = 62, 234
+DENIED_SYSCALLS: tuple[str, ...] = (
+    "fork", "vfork", "execve", "execveat",
+    "socket", "connect", "accept", "accept4", "bind", "listen", "socketpair",
+    "creat", "unlink", "unlinkat", "rename", "renameat", "renameat2", "mkdir", "mkdirat",
+    "rmdir", "link", "linkat", "symlink", "symlinkat", "chmod", "fchmod", "fchmodat",
+    "fchmodat2", "chown", "fchown", "lchown", "fchownat", "truncate", "ftruncate", "mknod",
+    "mknodat", "utime", "utimes", "utimensat", "futimesat", "setxattr", "lsetxattr",
+    "fsetxattr", "removexattr", "lremovexattr", "fremovexattr",
+    "mount", "umount2", "pivot_root", "chroot", "open_tree", "move_mount", "fsopen",
+    "fsconfig", "fsmount", "fspick", "mount_setattr", "unshare", "setns", "ptrace",
+    "process_vm_readv", "process_vm_writev", "process_madvise", "kexec_load",
+    "kexec_file_load", "init_module", "finit_module", "delete_module", "bpf",
+    "perf_event_open", "userfaultfd", "keyctl", "add_key", "request_key", "io_uring_setup",
+    "io_uring_enter", "io_uring_register", "memfd_create", "memfd_secret", "tkill",
+    "rt_sigqueueinfo", "rt_tgsigqueueinfo", "pidfd_open", "pidfd_send_signal", "pidfd_getfd",
+    "name_to_handle_at", "open_by_handle_at", "fanotify_init", "sethostname",
+    "setdomainname", "reboot", "swapon", "swapoff", "acct", "settimeofday", "clock_settime",
+    "adjtimex", "clock_adjtime", "iopl", "ioperm", "quotactl", "syslog", "vhangup",
+    "setuid", "setgid", "setreuid", "setregid", "setresuid", "setresgid", "setgroups",
+    "capset", "setsid", "setpgid", "setrlimit",
+)  # fmt: skip
 
 
-def _stmt(code: int, k: int) -> tuple[int, int, int, int]:
-    return (code, 0, 0, k)
-
-
-def _jump(code: int, k: int, jt: int, jf: int) -> tuple[int, int, int, int]:
-    return (code, jt, jf, k)
-
-
-def _arg_low(index: int) -> int:
-    """Offset of the low 32 bits of syscall argument ``index`` in struct seccomp_data."""
-    return 16 + 8 * index
-
-
-def build_program(
-    *, allow_threads: bool, deny_open: bool, own_pid: int
-) -> list[tuple[int, int, int, int]]:
-    """The BPF instructions (code, jt, jf, k) of the filter; see the module docstring."""
-    eperm = SECCOMP_RET_ERRNO | errno.EPERM
-    enosys = SECCOMP_RET_ERRNO | errno.ENOSYS
-    prog = [
-        _stmt(BPF_LD_W_ABS, 4),  # arch
-        _jump(BPF_JEQ_K, AUDIT_ARCH_X86_64, 1, 0),
-        _stmt(BPF_RET_K, SECCOMP_RET_KILL_PROCESS),
-        _stmt(BPF_LD_W_ABS, 0),  # nr
-        _jump(BPF_JGE_K, X32_SYSCALL_BIT, 0, 1),
-        _stmt(BPF_RET_K, SECCOMP_RET_KILL_PROCESS),
+class _ArgCmp(ctypes.Structure):
+    _fields_ = [
+        ("arg", ctypes.c_uint),
+        ("op", ctypes.c_int),
+        ("datum_a", ctypes.c_uint64),
+        ("datum_b", ctypes.c_uint64),
     ]
-    for nr in sorted(set(DENIED_SYSCALLS.values())):
-        prog += [_jump(BPF_JEQ_K, nr, 0, 1), _stmt(BPF_RET_K, eperm)]
-    for nr in (NR_CLONE3, NR_OPENAT2):
-        prog += [_jump(BPF_JEQ_K, nr, 0, 1), _stmt(BPF_RET_K, enosys)]
-    if deny_open:
-        for nr in (NR_OPEN, NR_OPENAT):
-            prog += [_jump(BPF_JEQ_K, nr, 0, 1), _stmt(BPF_RET_K, eperm)]
-    else:
-        for nr, flags_arg in ((NR_OPEN, 1), (NR_OPENAT, 2)):
-            prog += [
-                _jump(BPF_JEQ_K, nr, 0, 4),
-                _stmt(BPF_LD_W_ABS, _arg_low(flags_arg)),
-                _jump(BPF_JSET_K, OPEN_WRITE_FLAGS, 0, 1),
-                _stmt(BPF_RET_K, eperm),
-                _stmt(BPF_RET_K, SECCOMP_RET_ALLOW),
-            ]
-    if allow_threads:
-        prog += [
-            _jump(BPF_JEQ_K, NR_CLONE, 0, 4),
-            _stmt(BPF_LD_W_ABS, _arg_low(0)),
-            _jump(BPF_JSET_K, CLONE_THREAD, 0, 1),
-            _stmt(BPF_RET_K, SECCOMP_RET_ALLOW),
-            _stmt(BPF_RET_K, eperm),
-        ]
-    else:
-        prog += [_jump(BPF_JEQ_K, NR_CLONE, 0, 1), _stmt(BPF_RET_K, eperm)]
-    for nr in (NR_KILL, NR_TGKILL):  # the first argument must be our own pid
-        prog += [
-            _jump(BPF_JEQ_K, nr, 0, 4),
-            _stmt(BPF_LD_W_ABS, _arg_low(0)),
-            _jump(BPF_JEQ_K, own_pid, 0, 1),
-            _stmt(BPF_RET_K, SECCOMP_RET_ALLOW),
-            _stmt(BPF_RET_K, eperm),
-        ]
-    prog.append(_stmt(BPF_RET_K, SECCOMP_RET_ALLOW))
-    return prog
 
 
-class _SockFprog(ctypes.Structure):
-    _fields_ = [("len", ctypes.c_ushort), ("filter", ctypes.c_void_p)]
+@cache
+def library() -> ctypes.CDLL | None:
+    """libseccomp, loaded by soname (no subprocess, no search path); None when absent.
+    Called before lock-down, while the library file can still be read."""
+    try:
+        lib = ctypes.CDLL(LIBRARY, use_errno=True)
+    except OSError:
+        return None
+    lib.seccomp_init.argtypes = (ctypes.c_uint32,)
+    lib.seccomp_init.restype = ctypes.c_void_p
+    lib.seccomp_release.argtypes = (ctypes.c_void_p,)
+    lib.seccomp_release.restype = None
+    lib.seccomp_load.argtypes = (ctypes.c_void_p,)
+    lib.seccomp_attr_set.argtypes = (ctypes.c_void_p, ctypes.c_int, ctypes.c_uint32)
+    lib.seccomp_arch_add.argtypes = (ctypes.c_void_p, ctypes.c_uint32)
+    lib.seccomp_arch_remove.argtypes = (ctypes.c_void_p, ctypes.c_uint32)
+    lib.seccomp_arch_native.restype = ctypes.c_uint32
+    lib.seccomp_syscall_resolve_name.argtypes = (ctypes.c_char_p,)
+    lib.seccomp_rule_add_array.argtypes = (
+        ctypes.c_void_p,
+        ctypes.c_uint32,
+        ctypes.c_int,
+        ctypes.c_uint,
+        ctypes.POINTER(_ArgCmp),
+    )
+    lib.seccomp_export_pfc.argtypes = (ctypes.c_void_p, ctypes.c_int)
+    return lib
 
 
 def supported() -> bool:
-    return platform.system() == "Linux" and platform.machine() == "x86_64"
+    return library() is not None
+
+
+def _errno_action(code: int) -> int:
+    return 0x00050000 | (code & 0xFFFF)  # SCMP_ACT_ERRNO
+
+
+class _Filter:
+    """A libseccomp filter context; ``rule`` adds one, skipping syscalls the CPU lacks."""
+
+    def __init__(self, lib: ctypes.CDLL, arch: int | None) -> None:
+        self.lib = lib
+        self.ctx = lib.seccomp_init(SCMP_ACT_ALLOW)
+        if not self.ctx:
+            raise OSError(errno.ENOMEM, "seccomp_init failed")
+        if arch is not None and arch != lib.seccomp_arch_native():
+            self._check(lib.seccomp_arch_add(self.ctx, arch))
+            self._check(lib.seccomp_arch_remove(self.ctx, lib.seccomp_arch_native()))
+
+    @staticmethod
+    def _check(rc: int) -> None:
+        if rc < 0:
+            raise OSError(-rc, os.strerror(-rc))
+
+    def rule(self, action: int, name: str, *cmps: tuple[int, int, int, int]) -> None:
+        nr = self.lib.seccomp_syscall_resolve_name(name.encode())
+        if nr == -1:  # __NR_SCMP_ERROR: a name libseccomp does not know
+            return
+        array = (_ArgCmp * max(1, len(cmps)))(*[_ArgCmp(*c) for c in cmps])
+        rc = self.lib.seccomp_rule_add_array(self.ctx, action, nr, len(cmps), array)
+        if rc not in (0, -errno.EDOM):  # EDOM: no such syscall on this architecture
+            self._check(rc)
+
+    def release(self) -> None:
+        self.lib.seccomp_release(self.ctx)
+
+
+def _build(
+    lib: ctypes.CDLL, *, allow_threads: bool, deny_open: bool, own_pid: int, arch: int | None
+) -> _Filter:
+    f = _Filter(lib, arch)
+    eperm = _errno_action(errno.EPERM)
+    try:
+        for name in DENIED_SYSCALLS:
+            f.rule(eperm, name)
+        for name in ("clone3", "openat2"):
+            f.rule(_errno_action(errno.ENOSYS), name)
+        for name, flags_arg in (("open", 1), ("openat", 2)):
+            if deny_open:
+                f.rule(eperm, name)
+                continue
+            for flag in OPEN_WRITE_FLAGS:
+                f.rule(eperm, name, (flags_arg, SCMP_CMP_MASKED_EQ, flag, flag))
+        if allow_threads:
+            f.rule(eperm, "clone", (0, SCMP_CMP_MASKED_EQ, CLONE_THREAD, 0))
+        else:
+            f.rule(eperm, "clone")
+        f.rule(eperm, "prlimit64", (2, SCMP_CMP_NE, 0, 0))  # setting, not reading, a limit
+        f.rule(eperm, "prctl", (0, SCMP_CMP_EQ, PR_SET_PDEATHSIG, 0))
+        for name in ("kill", "tgkill"):  # the first argument must be our own pid
+            f.rule(eperm, name, (0, SCMP_CMP_NE, own_pid, 0))
+    except BaseException:
+        f.release()
+        raise
+    return f
+
+
+def filter_text(*, arch: int, allow_threads: bool = False, deny_open: bool = False) -> str:
+    """The filter libseccomp would build for ``arch`` (an SCMP_ARCH_* token), in its
+    human-readable PFC form: lets tests check the aarch64 filter on an x86_64 machine."""
+    lib = library()
+    if lib is None:
+        raise OSError(errno.ENOENT, f"{LIBRARY} is not installed")
+    f = _build(lib, allow_threads=allow_threads, deny_open=deny_open, own_pid=1, arch=arch)
+    fd = os.memfd_create("racecraft-seccomp-pfc", os.MFD_CLOEXEC)
+    try:
+        f._check(lib.seccomp_export_pfc(f.ctx, fd))
+        os.lseek(fd, 0, os.SEEK_SET)
+        with os.fdopen(os.dup(fd), "r") as text:
+            return text.read()
+    finally:
+        f.release()
+        os.close(fd)
 
 
 def install_filter(*, allow_threads: bool, deny_open: bool) -> str | None:
@@ -159,21 +204,20 @@ def install_filter(*, allow_threads: bool, deny_open: bool) -> str | None:
 
     Needs no_new_privs set first. Returns None on success or the reason it is not active.
     """
-    if not supported():
-        return f"no filter for {platform.machine()}"
-    prog = build_program(allow_threads=allow_threads, deny_open=deny_open, own_pid=os.getpid())
-    raw = b"".join(struct.pack("=HBBI", *ins) for ins in prog)
-    buf = ctypes.create_string_buffer(raw, len(raw))
-    fprog = _SockFprog(len(prog), ctypes.cast(buf, ctypes.c_void_p))
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.syscall.restype = ctypes.c_long
-    rc = libc.syscall(
-        ctypes.c_long(NR_SECCOMP),
-        ctypes.c_ulong(SECCOMP_SET_MODE_FILTER),
-        ctypes.c_ulong(SECCOMP_FILTER_FLAG_TSYNC),
-        ctypes.byref(fprog),
-    )
-    if rc != 0:
-        err = ctypes.get_errno()
-        return f"seccomp() failed: {os.strerror(err) if err else f'thread {rc} not synced'}"
+    lib = library()
+    if lib is None:
+        return f"{LIBRARY} not found (apt-get install libseccomp2)"
+    try:
+        f = _build(
+            lib, allow_threads=allow_threads, deny_open=deny_open, own_pid=os.getpid(), arch=None
+        )
+    except OSError as exc:
+        return f"building the filter failed: {exc.strerror or exc}"
+    try:
+        f._check(lib.seccomp_attr_set(f.ctx, SCMP_FLTATR_CTL_TSYNC, 1))
+        f._check(lib.seccomp_load(f.ctx))
+    except OSError as exc:
+        return f"seccomp_load failed: {exc.strerror or exc}"
+    finally:
+        f.release()
     return None

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from training.errors import ServiceError
+from training.interchange.carmodel import CarExportError
 from training.interchange.export import (
     build_car_archive,
     build_logs_archive,
@@ -12,7 +13,7 @@ from training.interchange.export import (
     export_onnx,
 )
 from training.models import EvaluationJob, RacingModel
-from training.rl.checkpoints import load_checkpoint
+from training.rl.checkpoints import CheckpointError, load_checkpoint
 from training.services.models import model_metadata
 from training.storage import ObjectNotFound, StoreError
 from training.store import get_store, keys_for
@@ -24,21 +25,37 @@ def _need_checkpoint(model: RacingModel) -> None:
 
 
 def car_model_archive(model: RacingModel) -> bytes:
-    """``<name>-car.tar.gz``: model_metadata.json + model.onnx for the physical car."""
+    """``<name>-car.tar.gz`` for the physical car: ``agent/model.pb`` (a frozen TensorFlow
+    graph with DeepRacer's names) and ``model_metadata.json`` at its root."""
     _need_checkpoint(model)
     store, keys = get_store(), keys_for(model.pk)
     try:
         return store.get_bytes(keys.car_export)
     except ObjectNotFound:
         pass
-    metadata = model_metadata(model)
     try:
-        policy = load_checkpoint(store.get_bytes(keys.best), metadata)
-    except StoreError as exc:
-        raise ServiceError(f"the model's checkpoint could not be read: {exc}") from None
-    data = build_car_archive(metadata, export_onnx(policy))
+        data = build_car_archive(model_metadata(model), _best_checkpoint(model))
+    except (CarExportError, CheckpointError) as exc:
+        raise ServiceError(f"this model cannot be written for the car: {exc}") from None
     store.put_bytes(keys.car_export, data, "application/gzip")
     return data
+
+
+def onnx_policy(model: RacingModel) -> bytes:
+    """``<name>-policy.onnx``: the policy as ONNX for other runtimes (not for the car)."""
+    _need_checkpoint(model)
+    metadata = model_metadata(model)
+    try:
+        return export_onnx(load_checkpoint(_best_checkpoint(model), metadata), metadata)
+    except CheckpointError as exc:
+        raise ServiceError(f"the model's checkpoint could not be read: {exc}") from None
+
+
+def _best_checkpoint(model: RacingModel) -> bytes:
+    try:
+        return get_store().get_bytes(keys_for(model.pk).best)
+    except StoreError as exc:
+        raise ServiceError(f"the model's checkpoint could not be read: {exc}") from None
 
 
 def _collect(model: RacingModel, keep: Callable[[str], bool], what: str) -> dict[str, bytes]:

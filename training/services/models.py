@@ -11,8 +11,16 @@ import logging
 import random
 
 from training.errors import ServiceError
-from training.interchange.archive import ArchiveError, import_virtual_model
+from training.interchange.archive import (
+    ArchiveError,
+    ImportedModel,
+    import_virtual_model,
+    read_archive,
+)
+from training.interchange.deepracer import ImportedDeepRacerModel, import_deepracer_upload
 from training.models import RaceType, RacingModel
+from training.rewards.examples import DEFAULT_EXAMPLE, example_source
+from training.rl.hyperparams import defaults_for
 from training.rl.metadata import ModelMetadata, build_metadata
 from training.services.checks import (
     check_model_quota,
@@ -175,25 +183,25 @@ def _delete_quietly(model: RacingModel) -> None:
 
 
 def model_import(*, owner, name: str, upload, description: str = "") -> RacingModel:
-    """A model from a virtual-model archive (as downloaded from Racecraft), validated."""
+    """A model from an uploaded archive: Racecraft's virtual model, or a DeepRacer model (the
+    car's archive, the AWS console's virtual model, a DeepRacer-for-Cloud model folder),
+    validated; its weights become a Racecraft checkpoint without unpickling anything."""
     check_name(owner, name)
     check_model_quota(owner)
-    try:
-        imported = import_virtual_model(upload)
-    except ArchiveError as exc:
-        raise ServiceError(str(exc), field="archive") from None
+    imported, note = _read_model_upload(upload)
     meta = imported.metadata
+    hyperparameters = imported.hyperparameters or defaults_for(meta.training_algorithm)
     model = model_create(
         owner=owner,
         name=name,
-        description=description,
+        description=description or note,
         track_id=_default_track(),
         sensors=list(meta.sensor),
         action_space=meta.actions.to_metadata(),
         algorithm=meta.training_algorithm,
         neural_network=meta.neural_network,
-        hyperparameters=imported.hyperparameters.to_json(),
-        reward_function=imported.reward_function,
+        hyperparameters=hyperparameters.to_json(),
+        reward_function=imported.reward_function or example_source(DEFAULT_EXAMPLE),
         max_minutes=10,
         validate_reward=False,
     )
@@ -204,6 +212,29 @@ def model_import(*, owner, name: str, upload, description: str = "") -> RacingMo
     model.has_checkpoint = True
     model.save(update_fields=["imported", "has_checkpoint", "updated_at"])
     return model
+
+
+def _read_model_upload(upload) -> tuple[ImportedModel | ImportedDeepRacerModel, str]:
+    """The upload as Racecraft's virtual model, else as a DeepRacer model (it has a frozen
+    graph or TensorFlow checkpoints), and a note for the model's description."""
+    data = upload if isinstance(upload, bytes) else upload.read()
+    try:
+        return import_virtual_model(data), ""
+    except ArchiveError as exc:
+        racecraft_error = exc
+    try:
+        deepracer_files = any(
+            n.endswith((".pb", ".ckpt.index", ".index")) for n in read_archive(data)
+        )
+        if not deepracer_files:
+            raise racecraft_error
+        imported = import_deepracer_upload(data)
+    except ArchiveError as exc:
+        raise ServiceError(str(exc), field="archive") from None
+    note = f"Imported from DeepRacer's {imported.source}."
+    if imported.value_head_fresh:
+        note += " The policy is DeepRacer's; training it further starts the value function fresh."
+    return imported, note[:255]
 
 
 def _default_track() -> str:

@@ -15,10 +15,10 @@ from django.db import transaction
 
 from racing.rules import STATUS_LABELS, Status
 from training import live, services
-from training.interchange.export import build_car_archive, export_onnx
+from training.interchange.export import build_car_archive
 from training.interchange.logbook import LoggedIteration, TrainingLog
 from training.models import EpisodeMetric, IterationMetric, RacingModel, TrainingJob
-from training.rl.checkpoints import CheckpointError, load_checkpoint
+from training.rl.checkpoints import CheckpointError
 from training.rl.hyperparams import parse_hyperparameters
 from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train
 from training.rollout.vecenv import RolloutError
@@ -233,11 +233,11 @@ def run_training_job(job_id: int, worker: str = "") -> str:
 
 
 def _export_car(model: RacingModel) -> None:
-    """Write the car archive from the best checkpoint, so the download is ready at once."""
+    """Write the car archive (``agent/model.pb`` + ``model_metadata.json``) from the best
+    checkpoint, so the download is ready at once."""
     store, keys = get_store(), keys_for(model.pk)
     try:
         metadata = services.model_metadata(model)
-        policy = load_checkpoint(store.get_bytes(keys.best), metadata)
-        store.put_bytes(keys.car_export, build_car_archive(metadata, export_onnx(policy)))
+        store.put_bytes(keys.car_export, build_car_archive(metadata, store.get_bytes(keys.best)))
     except Exception:  # noqa: BLE001 - the download rebuilds it on demand
         log.warning("could not export model %s for the car", model.pk, exc_info=True)

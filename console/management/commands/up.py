@@ -13,6 +13,7 @@ from django.core.management.base import BaseCommand, CommandError
 from django.db import connections
 
 from console.launcher import ConsoleOptions, LaunchError, console_run
+from training.checks import isolation_summary
 
 
 class Command(BaseCommand):
@@ -40,6 +41,8 @@ class Command(BaseCommand):
             self.stderr.write(f"warning: the code editor could not be built: {exc}")
         call_command("migrate", interactive=False, verbosity=options["verbosity"])
         connections.close_all()
+        for line in isolation_summary():  # what protects this machine from reward code
+            self.stdout.write(f"racecraft: {line}")
         launch = ConsoleOptions(
             host=host,
             port=port,

@@ -2,7 +2,7 @@
 # hostile: ignoring signals then looping, Python guards off
 # mode: bypass
 # expect: TEST_FAILURE
-# match: wall-clock limit
+# match: took longer than
 
 import signal
 

@@ -2,7 +2,7 @@
 # hostile: sleeping past the limit, Python guards off
 # mode: bypass
 # expect: TEST_FAILURE
-# match: wall-clock limit
+# match: took longer than
 
 import time
 

@@ -2,7 +2,7 @@
 # hostile: an endless CPU loop
 # mode: guarded
 # expect: TEST_FAILURE
-# match: wall-clock limit
+# match: took longer than
 
 
 def reward_function(params):

@@ -2,7 +2,7 @@
 # hostile: an endless flood of output
 # mode: guarded
 # expect: TEST_FAILURE
-# match: wall-clock limit
+# match: took longer than
 
 
 def reward_function(params):

@@ -9,7 +9,8 @@ from django.core.management.base import BaseCommand
 
 from training import services
 from training.management.cli import (
-    add_owner_argument,
+    add_model_arguments,
+    add_queue_argument,
     evaluation_progress,
     owner_and_model,
     require_completed,
@@ -30,8 +31,7 @@ class Command(BaseCommand):
     )
 
     def add_arguments(self, parser: ArgumentParser) -> None:
-        parser.add_argument("model_id", type=int, metavar="MODEL_ID")
-        add_owner_argument(parser, required=False)
+        add_model_arguments(parser)
         parser.add_argument("--laps", type=int, default=3, help="laps to drive, 3-5 (default 3)")
         parser.add_argument("--track", help="track id (default: the model's training track)")
         parser.add_argument(
@@ -53,12 +53,7 @@ class Command(BaseCommand):
             metavar="SECONDS",
             help="seconds added per crash, 0-60 (default 5)",
         )
-        parser.add_argument(
-            "--queue",
-            action="store_true",
-            help="queue the evaluation for a Celery worker and follow it, instead of running "
-            "it here",
-        )
+        add_queue_argument(parser, what="evaluation")
 
     def handle(self, *args: Any, model_id: int, owner: str | None, queue: bool, **options: Any):
         user, model = owner_and_model(model_id, owner)

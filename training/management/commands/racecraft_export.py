@@ -9,12 +9,13 @@ from typing import Any
 
 from django.core.management.base import BaseCommand, CommandError
 
-from training.management.cli import add_owner_argument, owner_and_model, service_errors
+from training.management.cli import add_model_arguments, owner_and_model, service_errors
 from training.models import RacingModel
 from training.services import downloads
 
 ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str, str]] = {
     "car": (downloads.car_model_archive, "{name}-car.tar.gz", "car model"),
+    "onnx": (downloads.onnx_policy, "{name}-policy.onnx", "ONNX policy"),
     "virtual": (downloads.virtual_model_archive, "{name}-virtualmodel.tar.gz", "virtual model"),
     "logs": (downloads.logs_archive, "{name}-logs.tar.gz", "logs"),
 }
@@ -23,15 +24,15 @@ ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str, str]] = {
 
 class Command(BaseCommand):
     help = (
-        "Write a model's archives, as the console's downloads: --car (model_metadata.json + "
-        "model.onnx for the physical car), --virtual (the whole model, re-importable with "
+        "Write a model's archives, as the console's downloads: --car (agent/model.pb + "
+        "model_metadata.json, for the physical car), --onnx (the policy as ONNX, for other "
+        "runtimes), --virtual (the whole model, re-importable with "
         "racecraft_import), --logs (sim-traces and metrics). A PATH that is a folder gets "
         "the console's file name."
     )
 
     def add_arguments(self, parser: ArgumentParser) -> None:
-        parser.add_argument("model_id", type=int, metavar="MODEL_ID")
-        add_owner_argument(parser, required=False)
+        add_model_arguments(parser)
         for kind, (_, filename, what) in ARCHIVES.items():
             parser.add_argument(
                 f"--{kind}",
@@ -42,7 +43,8 @@ class Command(BaseCommand):
     def handle(self, *args: Any, model_id: int, owner: str | None, **options: Any) -> None:
         wanted = {kind: options[kind] for kind in ARCHIVES if options[kind]}
         if not wanted:
-            raise CommandError("say what to export: --car PATH, --virtual PATH or --logs PATH")
+            choices = ", ".join(f"--{kind} PATH" for kind in ARCHIVES)
+            raise CommandError(f"say what to export: {choices}")
         _, model = owner_and_model(model_id, owner)
         for kind, target in wanted.items():
             build, filename, what = ARCHIVES[kind]

@@ -9,7 +9,8 @@ from django.core.management.base import BaseCommand
 
 from training import services
 from training.management.cli import (
-    add_owner_argument,
+    add_model_arguments,
+    add_queue_argument,
     mmss,
     owner_and_model,
     require_completed,
@@ -30,13 +31,8 @@ class Command(BaseCommand):
     )
 
     def add_arguments(self, parser: ArgumentParser) -> None:
-        parser.add_argument("model_id", type=int, metavar="MODEL_ID")
-        add_owner_argument(parser, required=False)
-        parser.add_argument(
-            "--queue",
-            action="store_true",
-            help="queue the job for a Celery worker and follow it, instead of running it here",
-        )
+        add_model_arguments(parser)
+        add_queue_argument(parser, what="job")
 
     def handle(self, *args: Any, model_id: int, owner: str | None, queue: bool, **options: Any):
         user, model = owner_and_model(model_id, owner)

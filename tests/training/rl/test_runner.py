@@ -52,7 +52,7 @@ def test_iterations_with_a_sandboxed_reward(algorithm, actions):
         hyperparameters=parse_hyperparameters(
             {"num_episodes_between_training": 8, "num_epochs": 3, "batch_size": 32}, algorithm
         ),
-        max_minutes=3,
+        max_minutes=60,  # the hooks stop it after 2 iterations, however loaded the machine is
         reward_source=REWARD,
         num_envs=2,
         eval_episodes=2,

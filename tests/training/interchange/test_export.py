@@ -14,10 +14,8 @@ import pytest
 import torch
 
 from training.interchange.export import (
-    ARCHIVE_MTIME,
     CheckpointError,
     ExportError,
-    build_car_archive,
     build_logs_archive,
     build_virtual_model_archive,
     checkpoint_bytes,
@@ -25,7 +23,7 @@ from training.interchange.export import (
     export_onnx,
     load_checkpoint,
 )
-from training.rl.metadata import build_metadata, parse_metadata
+from training.rl.metadata import build_metadata
 
 
 def session(onnx_bytes: bytes) -> ort.InferenceSession:
@@ -153,19 +151,6 @@ def members(archive: bytes) -> dict[str, tarfile.TarInfo]:
 def read_member(archive: bytes, name: str) -> bytes:
     with tarfile.open(fileobj=io.BytesIO(archive), mode="r:gz") as tar:
         return tar.extractfile(name).read()
-
-
-def test_car_archive(ppo_discrete) -> None:
-    onnx_bytes = export_onnx(ppo_discrete.model, ppo_discrete.metadata)
-    archive = build_car_archive(ppo_discrete.metadata, onnx_bytes)
-    infos = members(archive)
-    assert list(infos) == ["model.onnx", "model_metadata.json"]
-    assert all(i.isreg() and i.mtime == ARCHIVE_MTIME and i.mode == 0o644 for i in infos.values())
-    assert read_member(archive, "model.onnx") == onnx_bytes
-    assert parse_metadata(read_member(archive, "model_metadata.json")) == ppo_discrete.metadata
-    assert build_car_archive(ppo_discrete.metadata, onnx_bytes) == archive  # deterministic
-    with pytest.raises(ExportError):
-        build_car_archive(ppo_discrete.metadata, b"")
 
 
 def virtual_files(tiny) -> dict[str, bytes]:

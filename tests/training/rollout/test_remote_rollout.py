@@ -4,20 +4,15 @@ sandboxed rollout through real Redis, and gives exactly what a local sandboxed w
 from __future__ import annotations
 
 import functools
-import os
-import subprocess
-import sys
-import time
-import uuid
-from pathlib import Path
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
+from tests.support import ChildProcess, celery_worker_process
 from training.rollout.envs import EnvSpec
 from training.rollout.vecenv import RolloutError, SandboxedVecEnv
 
-ROOT = Path(__file__).resolve().parents[2]
 REWARD = """
 state = {"last": None}
 
@@ -30,29 +25,11 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture
-def simulation_worker(redis_env, tmp_path):
-    env = {**os.environ, **redis_env, "DJANGO_SETTINGS_MODULE": "console.settings"}
-    name = f"sim-{uuid.uuid4().hex[:8]}@%h"
-    log = open(tmp_path / "sim.log", "w")  # noqa: SIM115 - closed below
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "celery", "-A", "console", "worker", "-Q", "simulation",
-         "-c", "2", "-n", name, "--without-gossip", "--without-mingle", "-l", "INFO"],
-        cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
-    )  # fmt: skip
-    try:
-        from console.celery import app
-
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not app.control.ping(timeout=1.0):
-            assert proc.poll() is None, (tmp_path / "sim.log").read_text()
-        yield proc
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        log.close()
+def simulation_worker(child_env, tmp_path) -> Iterator[ChildProcess]:
+    with celery_worker_process(
+        queues=["simulation"], env=child_env, log_path=tmp_path / "sim.log", concurrency=2
+    ) as worker:
+        yield worker
 
 
 def run(venv, steps: int = 40):

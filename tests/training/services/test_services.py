@@ -14,12 +14,7 @@ from training.services import RewardRejected, ServiceError
 ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-30, 0, 30)]
 REWARD = "def reward_function(params):\n    return 1.0\n"
 
-pytestmark = pytest.mark.django_db
-
-
-@pytest.fixture(autouse=True)
-def store_dir(tmp_path, settings):
-    settings.STORE_DIR = tmp_path / "store"
+pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("store_dir")]
 
 
 @pytest.fixture
@@ -241,3 +236,42 @@ def test_a_heartbeat_thread_stamps_a_running_job(alice):
     assert job.heartbeat_at is not None
     assert (timezone.now() - job.heartbeat_at).total_seconds() < 2
     assert services.jobs_reap_orphans(stale_after_s=300) == 0
+
+
+def test_a_deepracer_car_archive_imports_as_a_model_that_drives_the_same(alice, ppo_discrete):
+    from racing.env import RacingEnv
+    from training.interchange.export import build_car_archive
+    from training.rl.checkpoints import load_checkpoint
+    from training.store import get_store, keys_for
+
+    archive = build_car_archive(ppo_discrete.metadata, ppo_discrete.model)
+    model = services.model_import(owner=alice, name="from-the-car", upload=archive)
+    assert model.imported and model.has_checkpoint
+    assert "Imported from DeepRacer's agent/model.pb" in model.description
+    assert "value function fresh" in model.description  # the car archive holds only the policy
+    assert model.reward_function.strip()  # an example reward to start from
+    imported = load_checkpoint(get_store().get_bytes(keys_for(model.pk).best),
+                               services.model_metadata(model))  # fmt: skip
+    env = RacingEnv("racecraft_summit")
+    obs, _ = env.reset(seed=4)
+    for _ in range(10):
+        ours, _ = imported.predict(obs, deterministic=True)
+        theirs, _ = ppo_discrete.model.predict(obs, deterministic=True)
+        assert int(ours) == int(theirs)
+        obs, *_ = env.step(int(theirs))
+    env.close()
+
+
+def test_an_archive_that_is_neither_kind_is_refused_clearly(alice):
+    import io
+    import tarfile
+
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w:gz") as tar:
+        info = tarfile.TarInfo("notes.txt")
+        info.size = 5
+        tar.addfile(info, io.BytesIO(b"hello"))
+    with pytest.raises(ServiceError) as refused:
+        services.model_import(owner=alice, name="junk", upload=buffer.getvalue())
+    assert refused.value.field == "archive" and refused.value.message
+    assert not RacingModel.objects.filter(name="junk").exists()

@@ -1,0 +1,62 @@
+"""The ground the camera sees has DeepRacer's grayscale look: its asphalt, borders, centre line
+and grass, compared with real DeepRacer camera frames (deepracer-utils' sample pictures)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from racing.car import Pose
+from racing.sensors import PinholeCamera, ground_for
+from racing.texture import BORDER_RGB, CENTRE_RGB, FLOOR_RGB, ROAD_RGB
+from racing.tracks import TrackCatalog
+from tests.training.interchange.deepracer_support import CACHE, aws_samples
+
+CLASSES = {"road": ROAD_RGB, "border": BORDER_RGB, "centre": CENTRE_RGB, "grass": FLOOR_RGB}
+
+
+def gray(rgb: tuple[int, int, int]) -> float:
+    return 0.299 * rgb[0] + 0.587 * rgb[1] + 0.114 * rgb[2]
+
+
+def deepracer_class_means() -> dict[str, float]:
+    """Mean grayscale of each surface on DeepRacer's frames, segmented by hue."""
+    aws_samples()  # downloads the pictures once (or skips)
+    sums = {name: [] for name in CLASSES}
+    for picture in sorted((CACHE / "pictures").glob("*.png")):
+        bgr = cv2.imread(str(picture))
+        h, s, v = (c.astype(int) for c in cv2.split(cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)))
+        y = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(float)
+        masks = {
+            "road": (h >= 95) & (h <= 130) & (s > 40) & (v >= 40) & (v < 140),
+            "border": (s < 40) & (v > 170),
+            "centre": (h >= 8) & (h <= 25) & (s > 150) & (v > 150),
+            "grass": (h >= 45) & (h <= 85) & (s > 40) & (v > 80),
+        }
+        for name, mask in masks.items():
+            sums[name].append(y[mask])
+    return {name: float(np.concatenate(parts).mean()) for name, parts in sums.items()}
+
+
+@pytest.mark.slow
+def test_surfaces_have_deepracers_gray_levels() -> None:
+    measured = deepracer_class_means()
+    for name, rgb in CLASSES.items():
+        assert abs(gray(rgb) - measured[name]) < 6, (name, gray(rgb), measured[name])
+
+
+def test_camera_frame_shows_the_surfaces_in_order() -> None:
+    """Ahead on a straight of a DeepRacer-wide track: asphalt in the middle, the centre line,
+    white borders, grass beyond them."""
+    track = TrackCatalog().load("racecraft_summit")  # 0.76 m wide, as DeepRacer's tracks
+    camera = PinholeCamera(ground_for(track, resolution=0.005, rgb=False))
+    s = 5.0
+    x, y = track.point_at(s)
+    frame = camera.render(Pose(x, y, track.heading_at(s)))
+    row = frame[-20].astype(int)
+    assert abs(np.median(row[40:120]) - gray(ROAD_RGB)) < 4  # asphalt ahead
+    assert gray(ROAD_RGB) + 40 < row[70:90].max() <= gray(CENTRE_RGB) + 2  # the centre line
+    assert frame.max() >= gray(BORDER_RGB) - 6  # a border in view
+    ground = frame[camera.first_ground_row + 2 :].astype(int)
+    assert (np.abs(ground - gray(FLOOR_RGB)) < 4).mean() > 0.05  # grass beyond the borders

@@ -1,0 +1,9 @@
+# ruff: noqa
+# hostile: reading the console's settings module for secrets, Python guards off
+# mode: bypass
+# expect: TEST_FAILURE
+# match: PermissionError
+
+
+def reward_function(params):
+    return float(len(open("@ROOT@/console/settings.py").read()))

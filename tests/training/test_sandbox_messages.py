@@ -1,0 +1,161 @@
+"""Every message from a sandbox is checked before use: forged but well-formed messages (valid
+frames, wrong contents) become the "sent malformed data" error, never an exception in the
+validation or the trainer."""
+
+from __future__ import annotations
+
+import uuid
+
+import numpy as np
+import pytest
+import redis
+
+from tests.conftest import REDIS_PREFIX
+from tests.training.sandbox_support import host_intact, real_params
+from training.rollout.remote import RemoteSlot, _push
+from training.rollout.vecenv import RolloutError, _WorkerVecEnv
+from training.sandbox import SandboxLimits, evaluate_reward
+from training.sandbox.protocol import decode, encode
+
+LIMITS = SandboxLimits(per_call_seconds=2.0, cpu_seconds=30)
+#: Python guards off: the reward reaches its own channel (the worst case) and sends VALUE.
+FORGER = """import gc
+from training.sandbox.protocol import write_message
+
+def context():
+    for o in gc.get_objects():
+        if type(o).__name__ == 'SandboxContext':
+            return o
+
+def reward_function(params):
+    ctx = context()
+    {action}
+    return 1.0
+"""
+
+FORGED_REWARDS = {
+    "index_out_of_range": "ctx.send({'i': 7, 'value': 1.0})",
+    "negative_index": "ctx.send({'i': -1, 'value': 1.0})",
+    "bool_index": "ctx.send({'i': True, 'value': 1.0})",
+    "nan_reward": "ctx.send({'i': 0, 'value': float('nan')})",
+    "huge_reward": "ctx.send({'i': 0, 'value': 1e300})",
+    "string_reward": "ctx.send({'i': 0, 'value': '1.0'})",
+    "missing_value": "ctx.send({'i': 0})",
+    "not_an_object": "ctx.send([1, 2, 3])",
+    "array_reward": "import numpy\n    ctx.send({'i': 0, 'value': numpy.ones(3)})",
+    "error_not_an_object": "ctx.send({'i': 0, 'error': 'boom'})",
+    "unknown_kind": "write_message(ctx._out, {'kind': 'surprise'})",
+    "ready_again": "write_message(ctx._out, {'kind': 'locked', 'layers': {}})",
+    "result_early": "write_message(ctx._out, {'kind': 'result', 'value': None, 'output': 7})",
+}
+
+
+@pytest.mark.parametrize("action", FORGED_REWARDS.values(), ids=list(FORGED_REWARDS))
+def test_forged_validation_messages_are_malformed_data(action: str) -> None:
+    source = FORGER.format(action=action)
+    with host_intact():
+        result = evaluate_reward(source, [real_params()], limits=LIMITS, python_guards=False)
+    outcome = result.outcomes[0]
+    assert outcome.value is None and outcome.error is not None
+    assert "sent malformed data" in outcome.error.message
+
+
+class FakeWorkers(_WorkerVecEnv):
+    """Two envs on one "worker" whose replies are given, after a trip through the protocol."""
+
+    def __init__(self, replies: list[object]) -> None:
+        from gymnasium import spaces
+
+        obs = spaces.Box(0, 255, (4, 4, 1), np.uint8)
+        super().__init__(2, obs, spaces.Discrete(3))
+        self.sizes = [2]
+        self.replies = [decode(encode(r)[4:]) for r in replies]
+
+    def _exchange(self, messages: list[dict]) -> list[dict]:
+        return [self.replies.pop(0)]
+
+    def close(self) -> None:
+        pass
+
+
+def _step(**changes: object) -> dict:
+    info = {"status": "in_progress", "progress": 1.0, "lap": 1, "trace": [0, 1, 1.5, "x"]}
+    reply = {
+        "obs": np.zeros((2, 4, 4, 1), np.uint8),
+        "rewards": np.ones(2, np.float32),
+        "dones": np.zeros(2, bool),
+        "infos": [dict(info), dict(info)],
+    }
+    reply.update(changes)
+    return reply
+
+
+GOOD_INFO = {"status": "in_progress", "progress": 1.0, "lap": 1, "trace": None}
+FORGED_STEPS = {
+    "obs_dtype": _step(obs=np.zeros((2, 4, 4, 1), np.float32)),
+    "obs_shape": _step(obs=np.zeros((3, 4, 4, 1), np.uint8)),
+    "obs_list": _step(obs=[[0]]),
+    "rewards_nan": _step(rewards=np.array([1.0, np.nan], np.float32)),
+    "rewards_inf": _step(rewards=np.array([np.inf, 1.0], np.float32)),
+    "rewards_huge": _step(rewards=np.array([1e9, 1.0], np.float32)),
+    "rewards_dtype": _step(rewards=np.ones(2, np.float64)),
+    "rewards_shape": _step(rewards=np.ones(3, np.float32)),
+    "dones_int": _step(dones=np.zeros(2, np.int64)),
+    "infos_short": _step(infos=[GOOD_INFO]),
+    "info_not_dict": _step(infos=[GOOD_INFO, "x"]),
+    "info_extra_key": _step(infos=[GOOD_INFO, dict(GOOD_INFO, evil=1)]),
+    "info_progress_nan": _step(infos=[GOOD_INFO, dict(GOOD_INFO, progress=float("nan"))]),
+    "info_status_number": _step(infos=[GOOD_INFO, dict(GOOD_INFO, status=3)]),
+    "info_trace_nested": _step(infos=[GOOD_INFO, dict(GOOD_INFO, trace=[[1, 2]])]),
+    "terminal_obs_shape": _step(
+        infos=[GOOD_INFO, dict(GOOD_INFO, terminal_observation=np.zeros((2, 2), np.uint8))]
+    ),
+    "episode_entry_nested": _step(infos=[GOOD_INFO, dict(GOOD_INFO, episode_entry={"steps": [1]})]),
+    "frame_not_jpeg": _step(
+        infos=[
+            dict(GOOD_INFO, frame={"camera": "x", "chase": "y", "progress": 1, "lap": 1}),
+            GOOD_INFO,
+        ]
+    ),  # fmt: skip
+    "not_a_dict": [1, 2],
+}
+
+
+def test_a_good_step_passes() -> None:
+    env = FakeWorkers([_step()])
+    env.step_async(np.zeros(2, np.int64))
+    obs, rewards, dones, infos = env.step_wait()
+    assert obs.shape == (2, 4, 4, 1) and rewards.tolist() == [1.0, 1.0] and len(infos) == 2
+
+
+@pytest.mark.parametrize("reply", FORGED_STEPS.values(), ids=list(FORGED_STEPS))
+def test_forged_rollout_steps_are_malformed_data(reply: object) -> None:
+    env = FakeWorkers([reply])
+    env.step_async(np.zeros(2, np.int64))
+    with pytest.raises(RolloutError, match="sent malformed data"):
+        env.step_wait()
+
+
+@pytest.mark.parametrize(
+    "reply", [{"obs": np.zeros((2, 4, 4, 1), np.int8)}, {}, "obs"], ids=["dtype", "empty", "text"]
+)
+def test_forged_reset_replies_are_malformed_data(reply: object) -> None:
+    with pytest.raises(RolloutError, match="sent malformed data"):
+        FakeWorkers([reply]).reset()
+
+
+@pytest.mark.parametrize(
+    "message",
+    [{"kind": "surprise"}, {"kind": "error", "message": {"x": 1}}, [1], "ready"],
+    ids=["unknown_kind", "error_not_text", "list", "text"],
+)
+def test_forged_remote_replies_are_malformed_data(message: object, redis_url: str) -> None:
+    client = redis.Redis.from_url(redis_url)
+    try:
+        slot = RemoteSlot(client, REDIS_PREFIX, uuid.uuid4().hex, 0)
+        _push(client, slot.reply_key, message)
+        with pytest.raises(RolloutError, match="sent malformed data"):
+            slot.recv(5)
+    finally:
+        client.delete(slot.reply_key)
+        client.close()

@@ -1,0 +1,226 @@
+"""Importing DeepRacer's own models: the car's archive and the console's / DeepRacer-for-Cloud's
+model folder, into a Racecraft checkpoint (an SB3 zip, as :mod:`training.rl.checkpoints` makes).
+
+- **Car model** (:func:`import_car_archive`): a tar.gz with exactly one ``*.pb`` anywhere
+  (DeepRacer writes ``agent/model.pb``) and ``model_metadata.json`` at the root.
+- **Model folder** (:func:`import_deepracer_model`): the AWS console's virtual model or a
+  DeepRacer-for-Cloud ``model/`` prefix, as tar.gz/tar/zip: ``model_metadata.json`` (at
+  ``model/`` or the top), ``reward_function.py``, ``hyperparameters.json`` (``ip/`` or the
+  top), optional ``training_params.yaml`` and metrics, and the frozen graphs DeepRacer writes
+  beside its TensorFlow checkpoints, ``model/model_<iteration>.pb``, or without them the
+  checkpoints themselves (``model/<iteration>_Step-<steps>.ckpt.index`` + ``.data-*``, read by
+  :mod:`training.interchange.tfcheckpoint`). The best checkpoint
+  (``deepracer_checkpoints.json``), else the last (``.coach_checkpoint``), else the highest
+  iteration is imported, from its graph when there is one.
+
+Archives are read in memory by :func:`training.interchange.archive.read_archive` (links,
+absolute or ``..`` names, devices, oversized or bomb archives are refused). The weights come
+only from the graph's Const nodes or the checkpoint's tensors
+(:mod:`training.interchange.graphimport`): nothing is unpickled or executed. Only the policy is
+taken (a frozen graph holds nothing else, and DeepRacer's PPO value network has its own
+convolutions, which Racecraft's shared network cannot hold), so the value function (PPO) or the
+critics (SAC) start fresh: :attr:`ImportedDeepRacerModel.value_head_fresh` says so.
+Every failure is an :class:`~training.interchange.archive.ArchiveError` naming the file.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import BinaryIO
+
+from training.interchange.archive import (
+    EXTRA_SUFFIXES,
+    ArchiveError,
+    ImportLimits,
+    read_archive,
+    read_json,
+    reward_source,
+)
+from training.interchange.graphimport import (
+    GraphImportError,
+    policy_from_checkpoint,
+    policy_from_graph,
+)
+from training.interchange.tfcheckpoint import CheckpointFormatError, read_checkpoint
+from training.rl.checkpoints import checkpoint_bytes
+from training.rl.hyperparams import HyperparameterError, Hyperparameters, parse_hyperparameters
+from training.rl.metadata import MetadataError, ModelMetadata, parse_metadata
+
+_GRAPH_RE = re.compile(r"^model/model_(\d+)\.pb$")
+_INDEX_RE = re.compile(r"^model/(\d+)_Step-\d+\.ckpt\.index$")
+_CKPT_RE = re.compile(r"^(\d+)_Step-\d+\.ckpt")
+
+
+@dataclass(frozen=True)
+class ImportedDeepRacerModel:
+    """A DeepRacer model made into a Racecraft one.
+
+    ``checkpoint_bytes`` is an SB3 zip to store as ``model/<checkpoint_name>.zip``;
+    ``metadata.neural_network`` names the Racecraft network that reproduces the graph.
+    ``value_head_fresh`` is True when only the policy came from the upload (a clone then
+    trains the value function or critics from scratch). ``hyperparameters`` and
+    ``reward_function`` are None for a car archive, which has neither.
+    """
+
+    metadata: ModelMetadata
+    checkpoint_bytes: bytes
+    checkpoint_name: str
+    source: str
+    value_head_fresh: bool
+    hyperparameters: Hyperparameters | None = None
+    reward_function: str | None = None
+    extra_files: dict[str, bytes] = field(default_factory=dict)
+
+
+def _metadata(files: Mapping[str, bytes], *names: str) -> tuple[str, ModelMetadata]:
+    name = next((n for n in names if n in files), None)
+    if name is None:
+        raise ArchiveError(f"model_metadata.json is missing (looked for {', '.join(names)})")
+    try:
+        return name, parse_metadata(files[name])
+    except MetadataError as exc:
+        raise ArchiveError(f"{name}: {exc}") from None
+
+
+def _convert(name: str, graph: bytes, metadata: ModelMetadata) -> tuple[ModelMetadata, bytes]:
+    try:
+        model, metadata = policy_from_graph(graph, metadata)
+    except GraphImportError as exc:
+        raise ArchiveError(f"{name}: {exc}") from None
+    return metadata, checkpoint_bytes(model)
+
+
+def import_car_archive(
+    upload: bytes | BinaryIO, limits: ImportLimits | None = None
+) -> ImportedDeepRacerModel:
+    """A physical-car model (``agent/model.pb`` + ``model_metadata.json``) as a Racecraft model.
+
+    Raises :class:`ArchiveError` for an unsafe archive, zero or several ``.pb`` files, a
+    missing or bad ``model_metadata.json``, or a graph that fits no Racecraft network.
+    """
+    return _car_model(read_archive(upload, limits))
+
+
+def _car_model(files: Mapping[str, bytes]) -> ImportedDeepRacerModel:
+    graphs = sorted(n for n in files if n.endswith(".pb"))
+    if len(graphs) != 1:
+        found = ", ".join(graphs) if graphs else "none"
+        raise ArchiveError(f"a car model holds exactly one .pb file (found {found})")
+    _, metadata = _metadata(files, "model_metadata.json")
+    metadata, zipped = _convert(graphs[0], files[graphs[0]], metadata)
+    return ImportedDeepRacerModel(
+        metadata=metadata,
+        checkpoint_bytes=zipped,
+        checkpoint_name="best",
+        source=graphs[0],
+        value_head_fresh=True,
+    )
+
+
+def _iteration(files: Mapping[str, bytes], name: str, role: str) -> int | None:
+    """The iteration of the checkpoint a DeepRacer index file names (``13_Step-25173.ckpt``)."""
+    if name not in files:
+        return None
+    if name.endswith(".json"):
+        entry = read_json(files, name)
+        entry = entry.get(role) if isinstance(entry, dict) else None
+        text = entry.get("name") if isinstance(entry, dict) else None
+    else:
+        text = files[name].decode("utf-8", "replace").strip().splitlines()[0:1]
+        text = text[0] if text else None
+    match = _CKPT_RE.match(text) if isinstance(text, str) else None
+    return int(match.group(1)) if match else None
+
+
+def _choose_source(files: Mapping[str, bytes]) -> str:
+    """The frozen graph (``model/model_<n>.pb``) or else the checkpoint index
+    (``model/<n>_Step-<steps>.ckpt.index``) of the best, else last, else newest iteration."""
+    graphs = {int(m.group(1)): n for n in files if (m := _GRAPH_RE.match(n))}
+    checkpoints = {int(m.group(1)): n for n in files if (m := _INDEX_RE.match(n))}
+    if not graphs and not checkpoints:
+        raise ArchiveError(
+            "no DeepRacer model to import: neither model/model_<iteration>.pb nor "
+            "model/<iteration>_Step-<steps>.ckpt.index"
+        )
+    for index, role in (
+        ("model/deepracer_checkpoints.json", "best_checkpoint"),
+        ("model/deepracer_checkpoints.json", "last_checkpoint"),
+        ("model/.coach_checkpoint", ""),
+    ):
+        iteration = _iteration(files, index, role)
+        if iteration in graphs or iteration in checkpoints:
+            return graphs.get(iteration) or checkpoints[iteration]
+    return graphs[max(graphs)] if graphs else checkpoints[max(checkpoints)]
+
+
+def _from_checkpoint(
+    index_name: str, files: Mapping[str, bytes], metadata: ModelMetadata
+) -> tuple[ModelMetadata, bytes]:
+    prefix = index_name.removesuffix(".index")
+    pattern = re.compile(rf"{re.escape(prefix)}\.data-(\d+)-of-\d+")
+    shards = {int(m.group(1)): data for n, data in files.items() if (m := pattern.fullmatch(n))}
+    try:
+        tensors = read_checkpoint(files[index_name], shards)
+        model, metadata = policy_from_checkpoint(tensors, metadata)
+    except (CheckpointFormatError, GraphImportError) as exc:
+        raise ArchiveError(f"{index_name}: {exc}") from None
+    return metadata, checkpoint_bytes(model)
+
+
+def import_deepracer_model(
+    upload: bytes | BinaryIO, limits: ImportLimits | None = None
+) -> ImportedDeepRacerModel:
+    """A DeepRacer console virtual model or DeepRacer-for-Cloud model folder as a Racecraft
+    model (see the module docstring for the files). Raises :class:`ArchiveError`."""
+    return _model_folder(read_archive(upload, limits))
+
+
+def _model_folder(files: Mapping[str, bytes]) -> ImportedDeepRacerModel:
+    meta_name, metadata = _metadata(files, "model/model_metadata.json", "model_metadata.json")
+    hp_name = next(
+        (n for n in ("ip/hyperparameters.json", "hyperparameters.json") if n in files), None
+    )
+    if hp_name is None:
+        raise ArchiveError("hyperparameters.json is missing (looked for ip/, the top folder)")
+    try:
+        hyperparameters = parse_hyperparameters(
+            read_json(files, hp_name), metadata.training_algorithm
+        )
+    except HyperparameterError as exc:
+        raise ArchiveError(f"{hp_name}: {exc}") from None
+    if "reward_function.py" not in files:
+        raise ArchiveError("reward_function.py is missing")
+    reward = reward_source(files, "reward_function.py")
+    source = _choose_source(files)
+    if source.endswith(".pb"):
+        metadata, zipped = _convert(source, files[source], metadata)
+    else:
+        metadata, zipped = _from_checkpoint(source, files, metadata)
+    used = {meta_name, hp_name, "reward_function.py"}
+    extra = {
+        name: data
+        for name, data in sorted(files.items())
+        if name not in used and name.endswith(EXTRA_SUFFIXES) and not name.startswith("model/")
+    }
+    return ImportedDeepRacerModel(
+        metadata=metadata,
+        checkpoint_bytes=zipped,
+        checkpoint_name="best",
+        source=source,
+        value_head_fresh=True,
+        hyperparameters=hyperparameters,
+        reward_function=reward,
+        extra_files=extra,
+    )
+
+
+def import_deepracer_upload(
+    upload: bytes | BinaryIO, limits: ImportLimits | None = None
+) -> ImportedDeepRacerModel:
+    """Either kind of DeepRacer upload, told apart by its files: a model folder has
+    ``reward_function.py``; anything else is read as a car model. Raises :class:`ArchiveError`.
+    """
+    files = read_archive(upload, limits)
+    return _model_folder(files) if "reward_function.py" in files else _car_model(files)

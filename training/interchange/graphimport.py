@@ -1,0 +1,388 @@
+"""A DeepRacer frozen graph (``model.pb``) read into the matching Racecraft torch policy.
+
+The layers are read from the graph's ops between DeepRacer's input and output nodes
+(:mod:`training.interchange.carmodel` names them): an optional input rescaling (``/255``,
+``-offset``), an optional AvgPool, Conv2D + BiasAdd + Relu layers, a Reshape, MatMul + BiasAdd
+layers, and the head (Softmax for discrete actions; for continuous ones the raw -1..1 output,
+Racecraft's clip-and-rescale, or SAC's Tanh). DeepRacer's plumbing (Identity, StopGradient, the
+gradient rescalers, Pack/StridedSlice) is skipped. The convolution stack picks the network of
+:data:`training.rl.policies.SPECS`: a dense layer straight into the head is DeepRacer's layout
+(``AWS_DEEPRACER_*``), a 64-unit hidden layer Racecraft's. Weights come only from Const nodes;
+nothing is executed but numpy arithmetic. Finally the torch policy and the graph itself
+(:func:`training.interchange.tfgraph.run_graph`) are run on probe images and must agree, so a
+graph that computes something else is refused rather than imported wrong.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from stable_baselines3 import SAC
+from stable_baselines3.common.base_class import BaseAlgorithm
+from torch import nn
+
+from training.interchange.carmodel import (
+    CAMERA_HEIGHT,
+    CAMERA_WIDTH,
+    RACECRAFT_NETWORK_KEY,
+    input_name,
+    output_name,
+)
+from training.interchange.export import BoxPolicy, DiscretePolicy
+from training.interchange.tfgraph import GraphError, const_value, parse_graph, run_graph
+from training.rl.checkpoints import new_model
+from training.rl.metadata import ModelMetadata
+from training.rl.policies import DIRECT_HEADS, SPECS
+
+PROBE_TOLERANCE = 1e-4
+PLUMBING = {
+    "Identity",
+    "StopGradient",
+    "Pack",
+    "StridedSlice",
+    "Shape",
+    "Sub",
+    "Mul",
+    "Add",
+    "AddV2",
+}
+
+
+class GraphImportError(ValueError):
+    """A graph whose names, shapes or layers do not fit a Racecraft network; says which."""
+
+
+@dataclass
+class _Layer:
+    kind: str  # "conv" | "dense"
+    kernel: np.ndarray  # conv HWIO, dense [in, out]
+    stride: int = 1
+    bias: np.ndarray | None = None
+    activation: str | None = None
+
+
+@dataclass
+class _Graph:
+    scale: float = 1.0  # the graph's input is image * scale + offset
+    offset: float = 0.0
+    pool: int = 1
+    layers: list[_Layer] = field(default_factory=list)
+    head: str = "linear"  # softmax | tanh | clip (already in the action's units) | linear
+
+
+def _path_nodes(graph, source: str, target: str) -> list:
+    """The nodes on some path from ``source`` to ``target``, in the graph's (topological)
+    order. Raises :class:`GraphImportError` when either is missing or they are not joined."""
+    nodes = {n.name: n for n in graph.node}
+    for name, what in ((source, "input"), (target, "output")):
+        if name not in nodes:
+            raise GraphImportError(f"the graph has no {what} node {name}")
+    upstream, stack = set(), [target]
+    while stack:
+        name = stack.pop()
+        if name in upstream or name not in nodes:
+            continue
+        upstream.add(name)
+        stack.extend(i.split(":")[0].lstrip("^") for i in nodes[name].input)
+    if source not in upstream:
+        raise GraphImportError(f"the output {target} does not depend on the input {source}")
+    downstream = {source}
+    for node in graph.node:  # frozen graphs list every input before its consumers
+        if any(i.split(":")[0] in downstream for i in node.input):
+            downstream.add(node.name)
+    return [n for n in graph.node if n.name in upstream and n.name in downstream]
+
+
+def _weight(nodes: dict, name: str) -> np.ndarray:
+    """The Const behind ``name``, through Identity (``kernel/read``) nodes."""
+    node = nodes[name.split(":")[0]]
+    while node.op == "Identity":
+        node = nodes[node.input[0].split(":")[0]]
+    try:
+        return const_value(node).astype(np.float32)
+    except GraphError as exc:
+        raise GraphImportError(f"a weight is not a constant ({exc})") from None
+
+
+def _read_layers(graph, source: str, target: str) -> _Graph:
+    nodes = {n.name: n for n in graph.node}
+    path = _path_nodes(graph, source, target)
+    on_path = {n.name for n in path}
+    found = _Graph()
+    for node in path:
+        op, layers = node.op, found.layers
+        if node.name == source:
+            continue
+        others = [i for i in node.input if i.split(":")[0] not in on_path]
+        if op in ("RealDiv", "Mul", "Sub") and not layers and found.pool == 1 and others:
+            value = float(_weight(nodes, others[0]).reshape(-1)[0])
+            if op == "RealDiv":
+                found.scale, found.offset = found.scale / value, found.offset / value
+            elif op == "Mul":
+                found.scale, found.offset = found.scale * value, found.offset * value
+            else:
+                found.offset -= value
+        elif op == "AvgPool":
+            found.pool = int(node.attr["ksize"].list.i[1])
+        elif op == "Conv2D":
+            if node.attr["padding"].s != b"VALID":
+                raise GraphImportError(f"{node.name}: only VALID convolutions are supported")
+            stride = int(node.attr["strides"].list.i[1])
+            layers.append(_Layer("conv", _weight(nodes, node.input[1]), stride))
+        elif op == "MatMul":
+            if node.attr["transpose_a"].b or node.attr["transpose_b"].b:
+                raise GraphImportError(f"{node.name}: transposed MatMul is not supported")
+            layers.append(_Layer("dense", _weight(nodes, node.input[1])))
+        elif op == "BiasAdd" and layers:
+            layers[-1].bias = _weight(nodes, node.input[1])
+        elif op in ("Relu", "Tanh") and layers and layers[-1].activation is None:
+            layers[-1].activation = op
+        elif op == "Softmax":
+            found.head = "softmax"
+        elif op in ("Maximum", "Minimum"):
+            found.head = "clip"
+        elif op not in PLUMBING | {"Reshape"}:
+            raise GraphImportError(f"{node.name}: the op {op} is not supported")
+    if found.head == "linear" and found.layers and found.layers[-1].activation == "Tanh":
+        found.layers[-1].activation, found.head = None, "tanh"
+    return found
+
+
+def _network(found: _Graph, channels: int) -> str:
+    """The Racecraft network whose layers have the graph's shapes."""
+    convs = [
+        (int(c.kernel.shape[3]), int(c.kernel.shape[0]), c.stride)
+        for c in found.layers
+        if c.kind == "conv"
+    ]
+    denses = [d for d in found.layers if d.kind == "dense"]
+    if not convs or len(denses) not in (2, 3):
+        raise GraphImportError(
+            f"unsupported network: {len(convs)} convolutions and {len(denses)} dense layers"
+        )
+    direct = len(denses) == 2
+    for name, (pool, spec, dense) in SPECS.items():
+        if (name in DIRECT_HEADS) != direct:
+            continue
+        if pool == found.pool and spec == convs and denses[0].kernel.shape[1] == dense:
+            if found.layers[0].kernel.shape[2] != channels:
+                raise GraphImportError(
+                    f"the first convolution takes {found.layers[0].kernel.shape[2]} channels, "
+                    f"the sensor gives {channels}"
+                )
+            return name
+    raise GraphImportError(
+        f"unsupported network: convolutions (filters, kernel, stride) {convs}, pooling "
+        f"{found.pool}, dense layers {[d.kernel.shape[1] for d in denses]} match no Racecraft "
+        "network"
+    )
+
+
+def _copy(linear: nn.Module, kernel: np.ndarray, bias: np.ndarray | None, what: str) -> None:
+    weight = torch.from_numpy(np.ascontiguousarray(kernel))
+    if tuple(weight.shape) != tuple(linear.weight.shape):
+        raise GraphImportError(
+            f"{what}: the graph has shape {tuple(weight.shape)}, the network "
+            f"{tuple(linear.weight.shape)}"
+        )
+    linear.weight.copy_(weight)
+    linear.bias.copy_(
+        torch.from_numpy(bias if bias is not None else np.zeros(weight.shape[0], np.float32))
+    )
+
+
+def _extractors(model: BaseAlgorithm) -> list[nn.Module]:
+    if isinstance(model, SAC):
+        return [
+            model.actor.features_extractor,
+            model.critic.features_extractor,
+            model.critic_target.features_extractor,
+        ]
+    return [model.policy.features_extractor]
+
+
+def _load(model: BaseAlgorithm, found: _Graph, metadata: ModelMetadata) -> None:
+    """Copy the graph's weights into ``model`` (torch sees images / 255 in C,H,W order)."""
+    convs = [layer for layer in found.layers if layer.kind == "conv"]
+    denses = [layer for layer in found.layers if layer.kind == "dense"]
+    # graph input = pixels * scale + offset = (pixels / 255) * 255 * scale + offset
+    first = convs[0].kernel
+    conv_bias = [
+        c.bias if c.bias is not None else np.zeros(c.kernel.shape[3], np.float32) for c in convs
+    ]
+    conv_bias[0] = conv_bias[0] + found.offset * first.sum(axis=(0, 1, 2))
+    kernels = [c.kernel.transpose(3, 2, 0, 1) for c in convs]
+    kernels[0] = kernels[0] * (255.0 * found.scale)
+    for extractor in _extractors(model):
+        torch_convs = [m for m in extractor.cnn if isinstance(m, nn.Conv2d)]
+        for i, (conv, kernel, bias) in enumerate(zip(torch_convs, kernels, conv_bias, strict=True)):
+            _copy(conv, kernel, bias, f"convolution {i + 1}")
+        h, w = _conv_output_size(found, convs)
+        flat = denses[0].kernel.reshape(h, w, -1, denses[0].kernel.shape[1])
+        _copy(
+            extractor.linear[0],
+            flat.transpose(3, 2, 0, 1).reshape(flat.shape[3], -1),
+            denses[0].bias,
+            "dense layer 1",
+        )
+    head = denses[-1]
+    kernel, bias = (
+        head.kernel.T,
+        head.bias if head.bias is not None else np.zeros(head.kernel.shape[1], np.float32),
+    )
+    space = model.action_space
+    if found.head == "linear" and metadata.action_space_type == "continuous":
+        # DeepRacer's PPO mean is in -1..1 of the ranges; Racecraft's in the action's units
+        half = (space.high - space.low) / 2.0
+        kernel, bias = kernel * half[:, None], bias * half + space.low + half
+    if isinstance(model, SAC):
+        hidden, out = list(model.actor.latent_pi), model.actor.mu
+    else:
+        hidden, out = list(model.policy.mlp_extractor.policy_net), model.policy.action_net
+    linears = [m for m in hidden if isinstance(m, nn.Linear)]
+    for layer, linear in zip(denses[1:-1], linears, strict=True):
+        _copy(linear, layer.kernel.T, layer.bias, "the policy's hidden layer")
+    _copy(out, kernel.astype(np.float32), bias.astype(np.float32), "the policy head")
+
+
+def _conv_output_size(found: _Graph, convs: list[_Layer]) -> tuple[int, int]:
+    h, w = CAMERA_HEIGHT // found.pool, CAMERA_WIDTH // found.pool
+    for conv in convs:
+        k = conv.kernel.shape[0]
+        h, w = (h - k) // conv.stride + 1, (w - k) // conv.stride + 1
+    return h, w
+
+
+def _probe(model: BaseAlgorithm, graph, metadata: ModelMetadata, found: _Graph) -> None:
+    """Run the graph (numpy) and the torch policy on probe images; refuse if they differ."""
+    rng = np.random.default_rng(0)
+    images = rng.uniform(0, 255, (3, CAMERA_HEIGHT, CAMERA_WIDTH, metadata.channels)).astype(
+        np.float32
+    )
+    images[0] = 0.0
+    algorithm = metadata.training_algorithm
+    expected = run_graph(
+        graph, {input_name(algorithm, metadata.camera): images}, output_name(algorithm)
+    )
+    discrete = metadata.action_space_type == "discrete"
+    wrapper = DiscretePolicy(model.policy) if discrete else BoxPolicy(model)
+    with torch.no_grad():
+        actual = wrapper(torch.from_numpy(images.transpose(0, 3, 1, 2).copy())).numpy()
+    if not discrete:  # the graph's actions are in -1..1 of the ranges
+        low, high = model.action_space.low, model.action_space.high
+        actual = 2.0 * (actual - low) / (high - low) - 1.0
+        if found.head == "linear":  # the car clips DeepRacer's raw mean to -1..1
+            expected = np.clip(expected, -1.0, 1.0)
+    if expected.shape != actual.shape:
+        raise GraphImportError(
+            f"the graph's output has shape {expected.shape[1:]}, "
+            f"the metadata's actions {actual.shape[1:]}"
+        )
+    error = float(np.abs(expected - actual).max())
+    if not error <= PROBE_TOLERANCE * max(1.0, float(np.abs(expected).max())):
+        raise GraphImportError(
+            f"unsupported network: the imported policy differs from the graph by {error:.3g}"
+        )
+
+
+def policy_from_graph(data: bytes, metadata: ModelMetadata) -> tuple[BaseAlgorithm, ModelMetadata]:
+    """The torch policy of a DeepRacer ``model.pb`` and the metadata naming its network.
+
+    ``metadata`` is the archive's ``model_metadata.json`` (its sensor, algorithm and actions
+    pick the tensor names and shapes). Returns an SB3 model whose policy gives the graph's
+    outputs (value function and SAC critics freshly initialised) and the metadata with
+    ``neural_network`` set to the matching Racecraft network. Raises :class:`GraphImportError`
+    naming the node, name or shape at fault.
+    """
+    try:
+        graph = parse_graph(data)
+    except GraphError as exc:
+        raise GraphImportError(str(exc)) from None
+    algorithm = metadata.training_algorithm
+    found = _read_layers(graph, input_name(algorithm, metadata.camera), output_name(algorithm))
+    if (found.head == "softmax") != (metadata.action_space_type == "discrete"):
+        raise GraphImportError(
+            f"the graph's head ({found.head}) does not fit a {metadata.action_space_type} "
+            "action space"
+        )
+    squash = "tanh" if algorithm == "sac" else "linear"
+    if metadata.action_space_type == "continuous" and found.head not in (squash, "clip"):
+        raise GraphImportError(
+            f"unsupported network: a {algorithm} graph whose head ends in {found.head}"
+        )
+    model, metadata = _build(found, metadata)
+    try:
+        _probe(model, graph, metadata, found)
+    except GraphError as exc:
+        raise GraphImportError(str(exc)) from None
+    return model, metadata
+
+
+def _build(found: _Graph, metadata: ModelMetadata) -> tuple[BaseAlgorithm, ModelMetadata]:
+    network = _network(found, metadata.channels)
+    extra = {k: v for k, v in metadata.extra.items() if k != RACECRAFT_NETWORK_KEY}
+    metadata = dataclasses.replace(metadata, neural_network=network, extra=extra)
+    model = new_model(metadata)
+    with torch.no_grad():
+        _load(model, found, metadata)
+    return model, metadata
+
+
+def policy_from_checkpoint(
+    tensors: Mapping[str, np.ndarray], metadata: ModelMetadata
+) -> tuple[BaseAlgorithm, ModelMetadata]:
+    """The torch policy of a DeepRacer TensorFlow checkpoint (tensors by variable name, see
+    :mod:`training.interchange.tfcheckpoint`), as :func:`policy_from_graph` gives it.
+
+    A checkpoint holds variables, not the graph, so DeepRacer's layout is assumed: the policy
+    network's ``<SENSOR>/Conv2d_<n>/kernel|bias`` (strides from the matching network of
+    :data:`training.rl.policies.SPECS`), ``middleware_fc_embedder/Dense_0`` and the one dense
+    layer of its head, on images divided by 255. Raises :class:`GraphImportError`.
+    """
+    algorithm = metadata.training_algorithm
+    scope = output_name(algorithm).rsplit("/", 2)[0] + "/"
+    head_scope = output_name(algorithm).rsplit("/", 1)[0] + "/"
+    convs = {}
+    for name in tensors:
+        match = re.fullmatch(rf"{re.escape(scope + metadata.camera)}/Conv2d_(\d+)/kernel", name)
+        if match:
+            convs[int(match.group(1))] = name[: -len("kernel")]
+    if not convs:
+        raise GraphImportError(f"no convolution under {scope}{metadata.camera}/ in the checkpoint")
+    kernels = [tensors[convs[i] + "kernel"] for i in sorted(convs)]
+    shapes = [(int(k.shape[3]), int(k.shape[0])) for k in kernels]
+    strides = next(
+        (
+            [s for _, _, s in spec]
+            for _, spec, _ in SPECS.values()
+            if [(f, k) for f, k, _ in spec] == shapes
+        ),
+        None,
+    )
+    if strides is None:
+        raise GraphImportError(f"unsupported network: convolutions (filters, kernel) {shapes}")
+    found = _Graph(
+        scale=1 / 255.0, head="softmax" if metadata.action_space_type == "discrete" else "linear"
+    )
+    if algorithm == "sac":
+        found.head = "tanh"
+    for i, kernel, stride in zip(sorted(convs), kernels, strides, strict=True):
+        found.layers.append(_Layer("conv", kernel, stride, tensors.get(convs[i] + "bias"), "Relu"))
+    heads = [n for n in tensors if n.startswith(head_scope) and n.endswith("/kernel")]
+    dense = scope + "middleware_fc_embedder/Dense_0/"
+    if dense + "kernel" not in tensors or len(heads) != 1:
+        raise GraphImportError(
+            f"the checkpoint needs {dense}kernel and one kernel under {head_scope} "
+            f"(found {len(heads)})"
+        )
+    found.layers.append(
+        _Layer("dense", tensors[dense + "kernel"], 1, tensors.get(dense + "bias"), "Relu")
+    )
+    head = heads[0][: -len("kernel")]
+    found.layers.append(_Layer("dense", tensors[head + "kernel"], 1, tensors.get(head + "bias")))
+    return _build(found, metadata)

@@ -1,0 +1,147 @@
+"""Reward validation as a Celery task: the web process runs no user code.
+
+``reward_validation_start`` checks the request (text, track, direction: nothing of the user's
+is executed), applies the per-user limits and queues ``training.tasks.validate_reward`` on the
+``default`` queue; the browser polls ``reward_validation_status`` until the result is there.
+The worker runs :func:`reward_validation_run` (static checks, then the sandbox).
+
+Per-user limits live in Redis so every web process sees the same counts: at most
+``RACECRAFT_VALIDATIONS_PER_USER`` validations queued or running at once, and at most
+``RACECRAFT_VALIDATIONS_PER_MINUTE`` started in a minute. A task id is readable only by the
+user who started it.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from typing import Any, TypedDict
+
+import redis
+from celery import current_app
+from celery.result import AsyncResult
+from django.conf import settings
+
+from training.dispatch import VALIDATE_REWARD
+from training.errors import RewardRejected, ServiceError
+from training.sandbox import MAX_SOURCE_CHARS
+from training.services.checks import check_reward, check_track
+
+#: How long an id stays readable and a slot stays taken without an answer (seconds).
+KEY_TTL_S = 15 * 60
+
+
+class ValidationNotFound(ServiceError):
+    """No validation with this id belongs to this user."""
+
+
+class ValidationLimited(ServiceError):
+    """The user is over a per-user validation limit (answered 429)."""
+
+
+class ValidationStatus(TypedDict, total=False):
+    """``status``: queued | running | done; when done, ``ok``, ``errors`` and ``rewards``."""
+
+    status: str
+    ok: bool
+    errors: list[dict[str, Any]]
+    rewards: dict[str, float]
+
+
+def _client() -> redis.Redis:
+    return redis.Redis.from_url(settings.REDIS_URL)
+
+
+def _key(*parts: object) -> str:
+    return f"{settings.REDIS_PREFIX}racecraft:reward-validation:" + ":".join(map(str, parts))
+
+
+def _check_request(source: object, track_id: object, direction: object) -> None:
+    if not isinstance(source, str) or not source.strip():
+        raise ServiceError("write a reward function", field="reward_function")
+    if len(source) > MAX_SOURCE_CHARS:
+        raise ServiceError(
+            f"the reward function is {len(source):,} characters; the limit is {MAX_SOURCE_CHARS:,}",
+            field="reward_function",
+        )
+    if not isinstance(track_id, str) or not isinstance(direction, str):
+        raise ServiceError("choose a track and a direction", field="track_id")
+    check_track(track_id, direction)
+
+
+def _take_slot(client: redis.Redis, user_id: int) -> None:
+    """Count this start against the user's per-minute and concurrent limits, or refuse."""
+    per_minute = settings.RACECRAFT_VALIDATIONS_PER_MINUTE
+    window = _key("rate", user_id, int(time.time() // 60))
+    started = client.incr(window)
+    client.expire(window, 120)
+    if started > per_minute:
+        raise ValidationLimited(
+            f"you started {per_minute} validations in the last minute, the most allowed; "
+            "wait a moment"
+        )
+    active = _key("active", user_id)
+    for task_id in client.smembers(active):
+        if AsyncResult(task_id.decode(), app=current_app).ready():
+            client.srem(active, task_id)
+    limit = settings.RACECRAFT_VALIDATIONS_PER_USER
+    if client.scard(active) >= limit:
+        raise ValidationLimited(f"you have {limit} validations running; wait for one to finish")
+
+
+def reward_validation_start(*, user_id: int, source: str, track_id: str, direction: str) -> str:
+    """Queue a validation of ``source`` on the track; return its id. Raises ServiceError for
+    a request we refuse (bad input, over a limit, the queue unreachable)."""
+    _check_request(source, track_id, direction)
+    client = _client()
+    try:
+        _take_slot(client, user_id)
+        task_id = uuid.uuid4().hex
+        client.set(_key("owner", task_id), user_id, ex=KEY_TTL_S)
+        client.sadd(_key("active", user_id), task_id)
+        client.expire(_key("active", user_id), KEY_TTL_S)
+        try:
+            current_app.send_task(
+                VALIDATE_REWARD, kwargs={"source": source, "track_id": track_id,
+                                   "direction": direction}, task_id=task_id,
+            )  # fmt: skip
+        except Exception as exc:  # noqa: BLE001 - a task that cannot be queued is refused
+            client.srem(_key("active", user_id), task_id)
+            raise ServiceError(f"the validation could not be queued: {exc}") from None
+    finally:
+        client.close()
+    return task_id
+
+
+def reward_validation_status(*, user_id: int, task_id: str) -> ValidationStatus:
+    """Where the user's validation ``task_id`` is; raises ValidationNotFound for an id that is
+    not theirs (or too old)."""
+    client = _client()
+    try:
+        owner = client.get(_key("owner", task_id)) if isinstance(task_id, str) else None
+        if owner is None or owner.decode() != str(user_id):
+            raise ValidationNotFound("no such validation")
+        result = AsyncResult(task_id, app=current_app)
+        if not result.ready():
+            return {"status": "running" if result.state == "STARTED" else "queued"}
+        client.srem(_key("active", user_id), task_id)
+    finally:
+        client.close()
+    if result.successful() and isinstance(result.result, dict):
+        return {"status": "done", **result.result}
+    failed = {"type": "TEST_FAILURE", "message": "The validation could not finish; try again.",
+              "line": None, "lineNumber": None, "column": None}  # fmt: skip
+    return {"status": "done", "ok": False, "errors": [failed], "rewards": {}}
+
+
+def reward_validation_run(*, source: str, track_id: str, direction: str) -> dict[str, Any]:
+    """In the worker: validate and answer ``{ok, errors, rewards}`` (JSON-able)."""
+    try:
+        result = check_reward(source, track_id, direction)
+    except RewardRejected as exc:
+        return {"ok": False, "errors": exc.errors, "rewards": {}}
+    except ServiceError as exc:
+        error = {"type": "REQUEST_ERROR", "message": exc.sentence, "line": None,
+                 "lineNumber": None, "column": None, "field": exc.field}  # fmt: skip
+        return {"ok": False, "errors": [error], "rewards": {}}
+    return {"ok": True, "errors": [], "rewards": result["rewards"]}
