@@ -118,13 +118,14 @@ class EpisodeBook:
     as SimApp's ROS time does): a row's ``tstamp`` is that clock, not the episode's own time,
     and an episode's first row is its ``prepare`` row, stamped at the episode's start, so
     "last tstamp - prepare tstamp" is the episode's simulated time. ``car`` is a random
-    64-bit id: unique among the cars of a run, whichever process or machine drives them.
+    48-bit id (under the 1e15 a sandbox may send): unique among the cars of a run, whichever
+    process or machine drives them.
     """
 
     def __init__(self, env: RacingEnv, phase: str = "training") -> None:
         self.env = env
         self.phase = phase
-        self.car = secrets.randbits(63)
+        self.car = secrets.randbits(48)
         self.episodes = 0
         self.reward = 0.0
         self.clock_s = 0.0
@@ -136,7 +137,7 @@ class EpisodeBook:
 
     def trace(self, row: TraceRow, done: bool) -> list:
         """The step's sim-trace row on the car's clock (``wall_clock`` now), then the car's
-        id."""
+        id: JSON scalars only, as a sandboxed worker may send them."""
         if self.first_step:
             row = row._replace(tstamp=self.clock_s)
             if not done:
@@ -144,6 +145,8 @@ class EpisodeBook:
         else:
             row = row._replace(tstamp=self.clock_s + row.tstamp)
         self.first_step = False
+        if isinstance(row.action, tuple):  # a continuous action, as SimApp writes it: text
+            row = row._replace(action=f"[{row.action[0]:.2f} {row.action[1]:.2f}]")
         return [*row.stamped(), self.car]
 
     def step(self, reward: float, info: dict, done: bool) -> dict | None:

@@ -124,3 +124,27 @@ def test_cars_of_an_env_runner_log_deepracer_times() -> None:
         car = e.entry["car"]
         assert first.tstamp >= clocks.get(car, 0.0) - 1e-9  # a car's clock never restarts
         clocks[car] = last.tstamp
+
+
+def test_continuous_actions_travel_as_simapps_text() -> None:
+    """A continuous car's row is JSON scalars (what a sandboxed worker may send) and its
+    action is written as SimApp writes it, ``[steer speed]``."""
+    import json
+
+    import numpy as np
+
+    from training.rollout.envs import EnvRunner, EnvSpec
+    from training.sandbox import checked
+
+    spec = EnvSpec(track="racecraft_oval", action_space={
+        "steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 2}})  # fmt: skip
+    runner = EnvRunner([spec.make()])
+    runner.reset([1])
+    try:
+        _, _, _, infos = runner.step(np.array([[30.0, 2.0]], dtype=np.float32))
+    finally:
+        runner.close()
+    row = json.loads(json.dumps(infos[0]["trace"]))
+    assert checked.scalars(row, "trace") == row
+    assert row[7] == "[30.00 2.00]"
+    assert TraceRow(*row[:19]).format().split(",")[7] == "[30.00 2.00]"
