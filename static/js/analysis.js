@@ -56,7 +56,9 @@
   }
 
   async function loadHeatmap() {
-    state.heatmap = await getJSON(`data/heatmap.json?kind=${state.kind}`);
+    const data = await getJSON(`data/heatmap.json?kind=${state.kind}`);
+    if (data.kind !== state.kind) return; // a newer choice is on its way
+    state.heatmap = data;
     $("heatmap-csv").href = `data/heatmap.csv?kind=${state.kind}`;
     drawTrack();
   }
@@ -71,7 +73,7 @@
       const [lo, hi] = t.drawPath(state.episode.path.x, state.episode.path.y, state.episode.path.speed);
       $("track-legend").textContent += ` · episode ${state.episode.episode} (iteration ${state.episode.iteration}) by speed ${lo.toFixed(1)}–${hi.toFixed(1)} m/s`;
     }
-    canvas.dataset.kind = state.kind;
+    canvas.dataset.kind = state.heatmap ? state.heatmap.kind : "";
     canvas.dataset.episode = state.episode ? `${state.episode.iteration}/${state.episode.episode}` : "";
   }
 

@@ -9,13 +9,7 @@ import time
 import pytest
 from django.contrib.auth import get_user_model
 
-from tests.console.test_console_browser import (  # noqa: F401 - fixtures
-    ARTIFACTS,
-    child_env,
-    page,
-    web,
-    worker,
-)
+from tests.console.test_console_browser import ARTIFACTS, page, web  # noqa: F401 - fixtures
 from training import services
 from training.models import JobStatus, TrainingJob
 
@@ -37,7 +31,7 @@ def _wait(predicate, timeout: float, what: str):
 
 
 @pytest.fixture
-def trained(worker) -> int:  # noqa: F811
+def trained(celery_worker) -> int:
     """Id of a model trained for one logged iteration by the Celery worker (set up before the
     browser: Playwright's event loop forbids the ORM in the test's thread)."""
     user = get_user_model().objects.create_user("analyst", password=PASSWORD)
