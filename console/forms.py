@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from django import forms
+from django.contrib.auth import password_validation
 from django.contrib.auth.forms import UserCreationForm
 from django.core.validators import RegexValidator
 
@@ -28,6 +29,16 @@ class SignUpForm(UserCreationForm):
 
     class Meta(UserCreationForm.Meta):
         fields = ("username",)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # Django's validators describe themselves as a long <ul>; one line says the same.
+        rules = [
+            str(text).rstrip(".") for text in password_validation.password_validators_help_texts()
+        ]
+        self.password_rules = "; ".join(r[:1].lower() + r[1:] for r in rules if r)
+        self.fields["password1"].help_text = ""
+        self.fields["password2"].help_text = "The same password again."
 
 
 def _track_choices() -> list[tuple[str, str]]:
@@ -72,6 +83,46 @@ class CloneForm(forms.Form):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.fields["track_id"].choices = _track_choices()
+
+
+class TrackUploadForm(forms.Form):
+    """A DeepRacer ``.npy`` track file; after a preview the file travels in ``data`` (base64)
+    so that Import does not ask for it again."""
+
+    file = forms.FileField(label="Track file (.npy)", required=False,
+                           widget=forms.ClearableFileInput(attrs={"accept": ".npy"}))  # fmt: skip
+    track_id = forms.CharField(
+        label="Track id", max_length=64, required=False,
+        help_text="Letters, digits, '_' or '-'; default: the file's name.",
+    )  # fmt: skip
+    name = forms.CharField(label="Display name", max_length=80, required=False)
+    data = forms.CharField(widget=forms.HiddenInput, required=False)
+    filename = forms.CharField(widget=forms.HiddenInput, required=False)
+
+    def upload(self) -> tuple[bytes, str]:
+        """The file's bytes and name: the new upload, else the one carried from the preview."""
+        import base64
+        import binascii
+
+        upload = self.cleaned_data.get("file")
+        if upload:
+            return upload.read(2_000_001), upload.name
+        try:
+            return base64.b64decode(self.cleaned_data.get("data") or "", validate=True), (
+                self.cleaned_data.get("filename") or ""
+            )
+        except (binascii.Error, ValueError):
+            return b"", ""
+
+
+class RewardForm(forms.Form):
+    """The reward function of a model that has not trained yet."""
+
+    reward_function = forms.CharField(
+        strip=False,
+        widget=forms.Textarea(attrs={"rows": 18, "spellcheck": "false"}),
+        error_messages={"required": "Write a reward function."},
+    )
 
 
 class EvaluateForm(forms.Form):

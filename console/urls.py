@@ -3,7 +3,7 @@
 /                          home                 /tracks/, /tracks/<id>.png   track gallery
 /accounts/signup|login|logout/                  /admin/                      Django admin
 /models/                   your models          /models/new/, /models/import/
-/models/<id>/              a model's page       .../clone/, .../delete/, .../train/
+/models/<id>/              a model's page       .../clone/, .../delete/, .../train/, .../reward/
 /models/<id>/download/<car|virtual|logs>/       /evaluations/<id>/video.mp4
 /models/<id>/analysis/     charts of the logs   .../data/<chart>.<json|csv>, .../replay/
 /jobs/training/<id>/stop/  /evaluations/<id>/stop/                           stop a job
@@ -15,7 +15,9 @@ from __future__ import annotations
 
 from django.contrib import admin
 from django.contrib.auth import views as auth_views
+from django.templatetags.static import static
 from django.urls import include, path, register_converter
+from django.views.generic.base import RedirectView
 
 from console.views import accounts, analysis, api, downloads, model_page, models, pages
 
@@ -38,11 +40,13 @@ urlpatterns = [
     path("", pages.home, name="home"),
     path("tracks/", pages.track_gallery, name="track-gallery"),
     path("tracks/<track:track_id>.png", pages.track_preview, name="track-preview"),
+    path("tracks/import/", pages.track_upload, name="track-upload"),
     # accounts
     path("accounts/signup/", accounts.signup, name="signup"),
     path(
         "accounts/login/",
-        auth_views.LoginView.as_view(redirect_authenticated_user=True),
+        # A new session lands on the user's models (a ?next= link still wins).
+        auth_views.LoginView.as_view(redirect_authenticated_user=True, next_page="models"),
         name="login",
     ),
     path("accounts/logout/", auth_views.LogoutView.as_view(next_page="home"), name="logout"),
@@ -53,6 +57,7 @@ urlpatterns = [
     path("models/<int:model_id>/", model_page.model_detail, name="model-detail"),
     path("models/<int:model_id>/clone/", models.model_clone, name="model-clone"),
     path("models/<int:model_id>/delete/", models.model_delete, name="model-delete"),
+    path("models/<int:model_id>/reward/", models.model_reward_edit, name="model-reward-edit"),
     path("models/<int:model_id>/train/", model_page.training_start, name="training-start"),
     path("models/<int:model_id>/evaluate/", model_page.evaluation_start, name="evaluation-start"),
     path(
@@ -89,4 +94,6 @@ urlpatterns = [
     path("api/reward/validate", api.reward_validate, name="reward-validate"),
     path("league/", include("leaderboard.urls")),
     path("admin/", admin.site.urls),
+    # Browsers ask for /favicon.ico on pages without an icon link (the admin's).
+    path("favicon.ico", RedirectView.as_view(url=static("img/logo.svg"), permanent=True)),
 ]

@@ -5,9 +5,11 @@ events, organiser/facilitators/entrants for private ones) joins the event's grou
 is refused with close code 4404 before the handshake completes. Messages, as JSON:
 
 - ``{"type": "snapshot", "rows": [...]}`` on connect;
-- ``{"type": "result", "submission": {...}, "rows": [...]}`` when a result lands: the whole
-  leaderboard (rows as :class:`~leaderboard.selectors.LeaderboardRow`) and the submission
-  that just finished, for highlighting.
+- ``{"type": "result", "submission": {...} | null, "rows": [...]}`` when a result lands: the
+  whole leaderboard (rows as :class:`~leaderboard.selectors.LeaderboardRow`) and the
+  submission that just finished as the pages show it to this viewer
+  (:func:`~leaderboard.live.visible_result`): their own whole, another racer's only once
+  ranked and without its reason, else null.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from channels.db import database_sync_to_async
 from channels.generic.websocket import AsyncJsonWebsocketConsumer
 
 from leaderboard.access import can_view_event
-from leaderboard.live import event_group
+from leaderboard.live import event_group, visible_result
 from leaderboard.models import Event
 from leaderboard.selectors import leaderboard_rows
 
@@ -59,6 +61,5 @@ class LeaderboardConsumer(AsyncJsonWebsocketConsumer):
         """Viewers only listen."""
 
     async def league_result(self, message: dict) -> None:
-        await self.send_json(
-            {"type": "result", "submission": message["submission"], "rows": message["rows"]}
-        )
+        user = self.scope.get("user")
+        await self.send_json(visible_result(message, getattr(user, "pk", None)))

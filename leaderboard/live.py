@@ -32,6 +32,20 @@ def result_message(submission: Submission) -> dict:
     }
 
 
+def visible_result(message: dict, user_id: int | None) -> dict:
+    """What one viewer receives of a result message: the leaderboard (which everyone sees) and
+    the submission as the league pages show it to them. Their own submission comes whole;
+    someone else's only once ranked, and never with its reason: another racer's failed or
+    unranked results are not theirs to read."""
+    submission = message["submission"]
+    if submission["racer_id"] != user_id:
+        if submission["status"] != Submission.Status.RANKED:
+            submission = None
+        else:
+            submission = {k: v for k, v in submission.items() if k != "reason"}
+    return {"type": "result", "submission": submission, "rows": message["rows"]}
+
+
 def broadcast_result(submission_id: int) -> None:
     """Send the event's new leaderboard to everyone watching (best effort)."""
     submission = Submission.objects.select_related("event").filter(pk=submission_id).first()

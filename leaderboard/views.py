@@ -35,6 +35,12 @@ def _visible_event(request: HttpRequest, event_id: int) -> Event:
     return event
 
 
+def _sentence(exc: LeagueError) -> str:
+    """A refusal as a sentence: capital first letter, full stop."""
+    text = exc.message[:1].upper() + exc.message[1:]
+    return text if text.endswith((".", "!", "?")) else text + "."
+
+
 def _form_error(form, exc: LeagueError) -> None:
     form.add_error(exc.field if exc.field in form.fields else None, exc.message)
 
@@ -145,6 +151,7 @@ def event_detail(request: HttpRequest, event_id: int) -> HttpResponse:
         "entrants": selectors.entrants_of(event) if manager and event.is_private else None,
         "invite_url": _invite_url(request, event) if manager and event.is_private else "",
         "is_open": event.is_open(),
+        "needs_alias": user.is_authenticated and not profile_for(user).alias,
     })  # fmt: skip
 
 
@@ -171,7 +178,7 @@ def event_submit(request: HttpRequest, event_id: int) -> HttpResponse:
         messages.success(request, f"{submission.model_name} is submitted: it is being "
                                   "evaluated on the event's track.")  # fmt: skip
     except LeagueError as exc:
-        messages.error(request, exc.message)
+        messages.error(request, _sentence(exc))
     return redirect("league-event", event.pk)
 
 
@@ -182,7 +189,7 @@ def _manage(request: HttpRequest, event_id: int, action: Callable[[Event], str])
         if note:
             messages.success(request, note)
     except LeagueError as exc:
-        messages.error(request, exc.message)
+        messages.error(request, _sentence(exc))
     return redirect("league-event", event.pk)
 
 

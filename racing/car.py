@@ -18,8 +18,7 @@ import os
 import sys
 from dataclasses import dataclass
 
-import pybullet as pb
-from pybullet_utils import bullet_client
+from racing.quiet_pybullet import bullet_client, pb
 
 CONTROL_HZ = 15.0
 """Agent decisions per simulated second (DeepRacer's camera rate)."""

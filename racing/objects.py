@@ -26,14 +26,14 @@ from racing.race import LANE_CHANGE_DISTANCE_M, LANE_INNER, LANE_OUTER, RaceConf
 from racing.track import Track
 
 INCH_M = 0.0254
+# The DeepRacer package box: 9.5" along the track, 15.25" across, 10.5" high.
 BOX_LENGTH_M = 9.5 * INCH_M
 BOX_WIDTH_M = 15.25 * INCH_M
 BOX_HEIGHT_M = 10.5 * INCH_M
-"""The DeepRacer package box: 9.5" along the track, 15.25" across, 10.5" high."""
+# A bot car's body: a DeepRacer car with its LIDAR shell, metres.
 BOT_LENGTH_M = 0.36
 BOT_WIDTH_M = 0.19
 BOT_HEIGHT_M = 0.2
-"""A bot car's body: a DeepRacer car with its LIDAR shell."""
 END_MARGIN_M = 1.0
 """Objects placed by the simulator stop this far before the end of the lap, metres."""
 KIND_BOX = "box"

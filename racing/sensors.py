@@ -20,12 +20,12 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import pybullet as pb
 
 from racing.car import Pose
 from racing.drawing import MAX_DRAW_DISTANCE_M, BoxSet, draw_boxes
 from racing.lidar import SENSOR_DISCRETIZED_LIDAR, SENSOR_LIDAR, SENSOR_SECTOR_LIDAR
 from racing.objects import KIND_BOT, RaceObject
+from racing.quiet_pybullet import pb
 from racing.texture import GroundTexture, render_ground
 from racing.track import Track
 

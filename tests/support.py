@@ -27,7 +27,7 @@ import pytest
 from django.db import connection
 
 ROOT = Path(__file__).resolve().parents[1]
-START_TIMEOUT_S = 60.0
+START_TIMEOUT_S = 90.0
 """How long a child process may take to answer (worker ping, daphne port) before the test fails."""
 STOP_TIMEOUT_S = 30.0
 """How long a child process may take to exit after SIGTERM before it is killed."""

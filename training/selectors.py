@@ -57,8 +57,14 @@ def latest_training_job(model: RacingModel) -> TrainingJob | None:
 
 
 def evaluations_of(model: RacingModel, limit: int = 10) -> list[EvaluationJob]:
-    """The model's user evaluations, newest first."""
-    return list(model.evaluations.filter(purpose="user").order_by("-created_at", "-pk")[:limit])
+    """The model's user evaluations, newest first; each has ``number``: 1 for the model's
+    first evaluation, 2 for the next (the ids are global, shared by every model)."""
+    mine = model.evaluations.filter(purpose="user")
+    total = mine.count()
+    rows = list(mine.order_by("-created_at", "-pk")[:limit])
+    for i, evaluation in enumerate(rows):
+        evaluation.number = total - i
+    return rows
 
 
 def chart_points(job: TrainingJob) -> list[dict]:
@@ -73,6 +79,7 @@ class ModelActions:
     can_train: bool
     can_evaluate: bool
     can_clone: bool
+    can_edit_reward: bool = False
 
 
 def model_actions(model: RacingModel, job: TrainingJob | None = None) -> ModelActions:
@@ -83,7 +90,10 @@ def model_actions(model: RacingModel, job: TrainingJob | None = None) -> ModelAc
     return ModelActions(
         can_train=not busy and not trained,
         can_evaluate=model.has_checkpoint and not model.is_busy,
-        can_clone=model.has_checkpoint,
+        # With a checkpoint a clone continues from it (even while training goes on); without
+        # one it is a fresh copy of the configuration, once the model is not busy.
+        can_clone=model.has_checkpoint or not busy,
+        can_edit_reward=job is None and not model.has_checkpoint and not busy,
     )
 
 

@@ -54,6 +54,8 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
         "chart_points": selectors.chart_points(job) if job else [],
         "can_start": actions.can_train,
         "can_evaluate": actions.can_evaluate,
+        "can_clone": actions.can_clone,
+        "can_edit_reward": actions.can_edit_reward,
         "evaluations": evaluations,
         "evaluation": evaluations[0] if evaluations else None,
         "evaluate_form": evaluate_form,

@@ -9,7 +9,7 @@ from django.shortcuts import redirect, render
 from django.views.decorators.http import require_http_methods, require_safe
 
 from console import tracks
-from console.forms import CloneForm, ImportForm
+from console.forms import CloneForm, ImportForm, RewardForm
 from console.model_form import HP_FIELDS, PPO_ONLY, SAC_ONLY, ModelCreateForm
 from console.views.owned import owned_model
 from console.views.service_calls import attempt_on_form
@@ -88,7 +88,9 @@ def model_create(request: HttpRequest) -> HttpResponse:
         ),
     )
     if model is None:
-        return _create_page(request, form, reward_errors=reward_errors)
+        # Refused by the server: reopen the page at the reward editor when that is the cause.
+        jump = "step-reward" if reward_errors else ""
+        return _create_page(request, form, reward_errors=reward_errors, jump=jump)
     messages.success(request, f"Model {model.name} created. Start training when you are ready.")
     return redirect("model-detail", model_id=model.pk)
 
@@ -125,9 +127,42 @@ def model_clone(request: HttpRequest, model_id: int) -> HttpResponse:
         if clone is not None:
             messages.success(request, f"Model {clone.name} cloned from {source.name}.")
             return redirect("model-detail", model_id=clone.pk)
-    context = {"nav": "models", "form": form, "source": source, **_editor_context(reward_errors)}
+    context = {
+        "nav": "models",
+        "form": form,
+        "source": source,
+        "fresh_copy": not source.has_checkpoint,
+        **_editor_context(reward_errors),
+    }
     status = 400 if form.is_bound and form.errors else 200
     return render(request, "models/clone.html", context, status=status)
+
+
+@login_required
+@require_http_methods(["GET", "POST"])
+def model_reward_edit(request: HttpRequest, model_id: int) -> HttpResponse:
+    model = owned_model(request, model_id)
+    form = RewardForm(request.POST or None, initial={"reward_function": model.reward_function})
+    reward_errors: list[dict] = []
+    if request.method == "POST" and form.is_valid():
+        updated, reward_errors = attempt_on_form(
+            form,
+            lambda: services.model_update_reward(
+                model=model, user=request.user, reward_function=form.cleaned_data["reward_function"]
+            ),
+        )
+        if updated is not None:
+            messages.success(request, "Reward function saved.")
+            return redirect("model-detail", model_id=model.pk)
+    context = {
+        "nav": "models",
+        "form": form,
+        "model": model,
+        "can_edit": selectors.model_actions(model).can_edit_reward,
+        **_editor_context(reward_errors),
+    }
+    status = 400 if form.is_bound and form.errors else 200
+    return render(request, "models/reward_edit.html", context, status=status)
 
 
 @login_required
@@ -147,6 +182,8 @@ def model_import(request: HttpRequest) -> HttpResponse:
         )
         if model is not None:
             messages.success(request, f"Model {model.name} imported.")
+            if getattr(model, "import_note", ""):
+                messages.warning(request, model.import_note[:1].upper() + model.import_note[1:])
             return redirect("model-detail", model_id=model.pk)
     status = 400 if form.is_bound and form.errors else 200
     return render(request, "models/import.html", {"nav": "models", "form": form}, status=status)

@@ -53,7 +53,10 @@
   renumber();
 
   // The generator posts the form back; land on the action space again.
+  // A refused form lands on its first error (the reward editor scrolls itself into view).
+  const firstError = form.querySelector(".has-error, .form-error");
   if (form.dataset.jump) document.getElementById(form.dataset.jump).scrollIntoView();
+  else if (firstError) firstError.scrollIntoView({ block: "center" });
   form.addEventListener("submit", () => {
     // Disabled inputs are not sent: enable SAC for the post so that a choice is never lost.
     form.querySelectorAll("[name=algorithm]").forEach((i) => (i.disabled = false));

@@ -50,7 +50,11 @@
     result.append(ok);
   }
 
-  if (initialErrors.length) showErrors(initialErrors);
+  if (initialErrors.length) {
+    // The server refused the reward function: take the user to it, at the first marked line.
+    showErrors(initialErrors);
+    root.scrollIntoView({ block: "start" });
+  }
 
   const useExample = root.querySelector("#use-example");
   if (useExample) {
@@ -66,11 +70,24 @@
   if (validate) {
     validate.addEventListener("click", async () => {
       const form = root.closest("form");
-      const track = form.querySelector("[name=track_id]:checked, select[name=track_id]");
+      const track = form.querySelector("[name=track_id]:checked, select[name=track_id], input[type=hidden][name=track_id]");
       const direction = form.querySelector("[name=direction]");
       validate.disabled = true;
       validate.textContent = "Validating…";
       result.replaceChildren();
+      // Progress while the sandbox runs the function (a few seconds; an endless loop is
+      // stopped after one call of the per-call limit).
+      const progress = document.createElement("p");
+      progress.className = "muted small validate-progress";
+      result.append(progress);
+      const perCall = Number(root.dataset.perCall || 5);
+      const started = Date.now();
+      const tick = () => {
+        const s = Math.floor((Date.now() - started) / 1000);
+        progress.textContent = `Running your function in the sandbox on the test situations… ${s} s (each call may take at most ${perCall} s).`;
+      };
+      tick();
+      const timer = window.setInterval(tick, 500);
       try {
         const response = await fetch(root.dataset.validateUrl, {
           method: "POST",
@@ -99,6 +116,8 @@
       } catch (err) {
         showErrors([{ type: "NETWORK_ERROR", message: "Could not reach the server: " + err }]);
       } finally {
+        window.clearInterval(timer);
+        progress.remove();
         validate.disabled = false;
         validate.textContent = "Validate";
       }

@@ -87,8 +87,9 @@
       const msg = JSON.parse(e.data);
       if (msg.type === "snapshot") render(msg.rows, null);
       if (msg.type === "result") {
-        render(msg.rows, msg.submission.status === "RANKED" ? msg.submission.id : null);
-        updateMine(msg.submission);
+        const sub = msg.submission;  // null: someone else's result that is not ranked
+        render(msg.rows, sub && sub.status === "RANKED" ? sub.id : null);
+        if (sub) updateMine(sub);
       }
     };
     socket.onclose = () => {
@@ -99,3 +100,17 @@
   }
   connect();
 })();
+
+// Small behaviours without inline handlers (the Content Security Policy allows no inline code).
+document.addEventListener("submit", (event) => {
+  const question = event.target.dataset && event.target.dataset.confirm;
+  if (question && !window.confirm(question)) event.preventDefault();
+});
+document.addEventListener("click", (event) => {
+  const target = event.target;
+  if (target.matches && target.matches("[data-select-on-click]")) target.select();
+  const from = target.dataset && target.dataset.copyFrom;
+  if (from && navigator.clipboard) {
+    navigator.clipboard.writeText(document.getElementById(from).value);
+  }
+});

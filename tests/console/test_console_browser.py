@@ -132,7 +132,12 @@ def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, we
 
     stop = page.locator("#stop-training")
     if stop.count() and stop.is_enabled():
-        stop.click()
+        stop.click()  # Stop asks first, in place (no browser dialog)
+        confirm = page.locator("#stop-training-confirm")
+        if confirm.count():
+            expect(confirm).to_contain_text("Yes, stop training")
+            shot(page, "05a-stop-confirm", "#training")
+            confirm.click()
     expect(page.locator("#job-status")).to_have_text("Completed", timeout=180_000)
     expect(page.locator("#reward-chart")).not_to_have_attribute("data-points", "0")
     shot(page, "05-training-done", "#training")

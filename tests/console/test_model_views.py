@@ -130,6 +130,7 @@ def test_reward_errors_are_shown_with_their_lines(alice_client, store_dir) -> No
     )
     assert errors and errors[0]["type"] == "SYNTAX_ERROR" and errors[0]["lineNumber"] == 2
     assert "params[&#x27;speed&#x27;" in page  # the source is kept
+    assert 'data-jump="step-reward"' in page  # the page reopens at the editor, not the top
 
 
 def test_create_discrete_and_continuous(alice, alice_client, store_dir) -> None:

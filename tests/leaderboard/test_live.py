@@ -80,3 +80,32 @@ def test_the_asgi_application_routes_the_league_socket():
 
     assert any("ws/league/events/" in str(p.pattern) for p in console_patterns)
     assert AuthMiddlewareStack  # the real app wraps the routes in session auth
+
+
+def test_others_see_a_failed_result_neither_its_status_nor_its_reason(fran, alice, bob):
+    from training.models import JobStatus
+
+    event = make_event(fran)
+    sub = submission_create(event=event, user=alice, model=make_model(alice))
+
+    async def scenario() -> tuple[dict, dict]:
+        from channels.db import database_sync_to_async
+
+        watchers = []
+        for user in (alice, bob):
+            communicator, connected, _ = await connect(event.pk, user)
+            assert connected
+            await communicator.receive_json_from(timeout=10)  # the snapshot
+            watchers.append(communicator)
+        await database_sync_to_async(finish_evaluation)(
+            sub.evaluation, [], status=JobStatus.FAILED, error="secret reason of alice's"
+        )
+        seen = [await c.receive_json_from(timeout=10) for c in watchers]
+        for communicator in watchers:
+            await communicator.disconnect()
+        return seen[0], seen[1]
+
+    hers, his = async_to_sync(scenario)()
+    assert hers["submission"]["id"] == sub.pk and hers["submission"]["status"] == "FAILED"
+    assert "secret reason" in hers["submission"]["reason"]
+    assert his == {"type": "result", "submission": None, "rows": []}

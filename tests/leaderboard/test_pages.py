@@ -79,7 +79,37 @@ def test_refusals_are_shown_as_messages(client, event, alice, bob):
     client.force_login(bob)
     response = client.post(f"/league/events/{event.pk}/submit/",
                            {"model": make_model(alice).pk}, follow=True)  # fmt: skip
-    assert "you can only submit your own models" in response.content.decode()
+    assert "You can only submit your own models." in response.content.decode()
+
+
+def test_a_racer_without_an_alias_is_sent_to_the_profile(client, event, settings, tmp_path):
+    from django.contrib.auth import get_user_model
+
+    settings.STORE_DIR = tmp_path / "store"
+    newcomer = get_user_model().objects.create_user("newcomer", password="x-long-pass-1")
+    make_model(newcomer)
+    client.force_login(newcomer)
+    html = client.get(f"/league/events/{event.pk}/").content.decode()
+    assert 'id="needs-alias"' in html and 'href="/league/#profile"' in html
+
+
+def test_the_promotion_rule_is_on_the_league_pages(client, event, alice):
+    client.force_login(alice)
+    for url in ("/league/", f"/league/events/{event.pk}/"):
+        html = client.get(url).content.decode()
+        assert 'id="promotion"' in html
+        assert "rounded up" in html and "tied" in html and "10%" in html
+
+
+def test_submission_figures_say_what_they_cover(client, fran, alice):
+    event = make_event(fran, min_laps=1)
+    sub = submission_create(event=event, user=alice, model=make_model(alice))
+    finish_evaluation(sub.evaluation, [lap(34.4), lap(34.6), lap(34.5)])
+    client.force_login(alice)
+    html = client.get(f"/league/submissions/{sub.pk}/").content.decode()
+    assert "1 consecutive completed lap</strong> (its minimum)" in html
+    assert "(so one lap, not all" in html
+    assert "Lap complete" in html and "Lapcomplete" not in html
 
 
 def test_who_may_watch_a_submission(client, event, alice, bob, settings, tmp_path):

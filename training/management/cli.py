@@ -85,16 +85,25 @@ def _refresh(job: Job) -> Job:
 
 # ------------------------------------------------------------------------------ progress text
 def training_progress(job: TrainingJob) -> tuple[float, str]:
-    """Fraction of the stop condition used, and ``mm:ss/mm:ss  iteration n  eval x%  best y%``."""
+    """Fraction of the stop condition used, and ``mm:ss/mm:ss  iteration n running  e
+    episodes  eval x%  best y%``: the clock moves on every redraw, the counts after each
+    iteration (an iteration is ``num_episodes_between_training`` episodes, then an update)."""
     limit_s = job.max_minutes * 60
     if job.status == JobStatus.QUEUED:
         return 0.0, "queued"
     parts = [f"{mmss(job.elapsed_seconds)}/{mmss(limit_s)}"]
     latest = IterationMetric.objects.filter(job=job).order_by("-iteration").first()
-    if latest is None:
-        parts.append("first iteration" if job.status == JobStatus.IN_PROGRESS else "starting")
-    else:
-        parts.append(f"iteration {latest.iteration}")
+    per_iteration = (job.model.hyperparameters or {}).get("num_episodes_between_training")
+    if job.status == JobStatus.INITIALIZING:
+        parts.append("starting the simulators")
+    elif job.status in (JobStatus.IN_PROGRESS, JobStatus.STOPPING):
+        done = latest.iteration if latest else 0
+        size = f" ({per_iteration} episodes + update)" if per_iteration and not latest else ""
+        parts.append(f"iteration {done + 1} running{size}")
+    elif latest is not None:
+        parts.append(f"{latest.iteration} iterations")
+    parts.append(f"{job.episodes} episodes")
+    if latest is not None:
         parts.append(f"eval {latest.eval_progress:.1f}%")
         parts.append(f"best {job.best_eval_progress:.1f}%")
     if job.status == JobStatus.STOPPING:
@@ -335,6 +344,70 @@ def add_queue_argument(parser, *, what: str) -> None:
         action="store_true",
         help=f"queue the {what} for a Celery worker and follow it, instead of running it here",
     )
+
+
+def add_track_argument(parser, *, default: str | None) -> None:
+    """``--track``, with the installed track ids as its choices (listed in ``--help``, and by
+    argparse when an unknown one is given)."""
+    ids = services.track_catalog().ids()
+    parser.add_argument(
+        "--track",
+        choices=ids,
+        default=default,
+        metavar="TRACK",
+        help=f"track id, one of: {', '.join(ids)} "
+        + (f"(default: {default})" if default else "(default: the model's training track)"),
+    )
+
+
+def action_summary(model) -> str:  # noqa: ANN001
+    """``3 discrete actions`` or ``continuous actions (steering -30..30°, speed 0.5..2 m/s)``."""
+    if model.action_space_type == "discrete":
+        n = len(model.action_space)
+        return f"{n} discrete action{'s' if n != 1 else ''}"
+    try:
+        steer, speed = model.action_space["steering_angle"], model.action_space["speed"]
+        return (
+            f"continuous actions (steering {steer['low']:g}..{steer['high']:g}°, "
+            f"speed {speed['low']:g}..{speed['high']:g} m/s)"
+        )
+    except (KeyError, TypeError, ValueError):
+        return "continuous actions"
+
+
+@contextmanager
+def elapsed_ticker(out: OutputWrapper | None, text: str, every_s: float = 1.0) -> Iterator[None]:
+    """``text… 12 s`` kept up to date while the block runs (a long import, say): in place on a
+    terminal, a line every 10 s otherwise; silent with ``out=None``."""
+    if out is None:
+        yield
+        return
+    tty = bool(out.isatty())
+    done = threading.Event()
+    started = time.monotonic()
+
+    def tick() -> None:
+        last_line = 0.0
+        while not done.wait(every_s):
+            seconds = time.monotonic() - started
+            if tty:
+                out.write(f"\r{text}… {seconds:.0f} s", ending="")
+                out.flush()
+            elif seconds - last_line >= 10:
+                out.write(f"{text}… {seconds:.0f} s")
+                last_line = seconds
+
+    out.write(f"{text}…", ending="\n" if not tty else "")
+    out.flush()
+    thread = threading.Thread(target=tick, name="racecraft-ticker", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join(timeout=2)
+        if tty:
+            out.write(f"\r{text}… done in {time.monotonic() - started:.0f} s")
 
 
 def owner_and_model(model_id: int, owner: str | None):

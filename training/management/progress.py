@@ -1,11 +1,14 @@
 """A text progress bar for management commands (no dependency).
 
-On a terminal it redraws one line in place (``\\r``); in a log file or a pipe it writes a line
-each time another ~10% is done, and one at the end, so logs stay short.
+On a terminal it redraws one line in place (``\\r``) whenever its text changes (the clock, at
+least once a second while a job is followed); in a log file or a pipe it writes a line each
+time another ~10% is done or ``LOG_EVERY_S`` have passed with news, and one at the end, so
+logs stay short but never look stuck.
 """
 
 from __future__ import annotations
 
+import time
 from typing import TextIO
 
 from django.core.management.base import OutputWrapper
@@ -13,6 +16,8 @@ from django.core.management.base import OutputWrapper
 BAR_WIDTH = 30
 LOG_STEP = 0.1
 """Fraction of progress between two lines when the output is not a terminal."""
+LOG_EVERY_S = 15.0
+"""Seconds after which a line is written anyway (not a terminal), if the text changed."""
 
 
 def render_bar(fraction: float, text: str = "", width: int = BAR_WIDTH) -> str:
@@ -37,6 +42,7 @@ class ProgressBar:
         self._last = ""  # the latest state
         self._written = ""  # the latest line written (not a tty)
         self._open = False
+        self._logged_at = time.monotonic()
 
     def update(self, fraction: float, text: str = "") -> None:
         line = render_bar(fraction, text, self.width)
@@ -46,9 +52,12 @@ class ProgressBar:
                 self._write(f"\r{line}{pad}")
                 self._shown = len(line)
                 self._open = True
-        elif fraction >= self._next_log:
+        elif fraction >= self._next_log or (
+            line != self._written and time.monotonic() - self._logged_at >= LOG_EVERY_S
+        ):
             self._write(line + "\n")
             self._written = line
+            self._logged_at = time.monotonic()
             self._next_log = (int(fraction / LOG_STEP + 1e-9) + 1) * LOG_STEP
         self._last = line
 

@@ -16,7 +16,10 @@ prints the result as JSON and exits 1 when there are errors (2 for a usage probl
 from __future__ import annotations
 
 import argparse
+import ast
 import json
+import os
+import re
 import sys
 from dataclasses import dataclass, field
 from typing import Any
@@ -71,6 +74,8 @@ def situation_params(track: Track, situations: tuple[str, ...] = SITUATIONS) -> 
 
 
 def _load_track(track: Track | str) -> Track:
+    """A Track as given, or a built-in track by id (the console passes Track objects loaded
+    from its own catalogue; the command line passes its own catalogue's track)."""
     return TrackCatalog().load(track) if isinstance(track, str) else track
 
 
@@ -90,27 +95,29 @@ def validate_reward_function(
     operator must provide). Raises UnknownTrackError for an unknown track id.
     """
     loaded = _load_track(track)
-    errors = check_source(source)
+    errors = [_as_permission_error(e) for e in check_source(source)]
     if errors:
         return ValidationResult(errors)
     try:
-        result = evaluate_reward(source, situation_params(loaded, situations), limits=limits)
+        result = evaluate_reward(
+            source, situation_params(loaded, situations), limits=limits, stop_after_timeout=True
+        )
     except SandboxUnavailable as exc:
         return ValidationResult([RewardError("TEST_FAILURE", str(exc))])
+    outcomes = result.outcomes
     rewards: dict[str, float] = {}
-    seen: set[tuple[str, str]] = set()
-    for name, outcome in zip(situations, result.outcomes, strict=True):
+    failed: dict[tuple, list[str]] = {}  # one entry per distinct error, with its situations
+    for name, outcome in zip(situations, outcomes, strict=False):  # none after a time-out
         if outcome.error is None:
             if outcome.value is not None:
                 rewards[name] = outcome.value
             continue
-        err = outcome.error
-        key = (err.type, err.message)
-        if key in seen:  # e.g. a module that fails to load fails every situation alike
-            continue
-        seen.add(key)
+        err = _placed(outcome.error, source)
+        key = (err.type, _STEP.sub("", err.message), err.line, err.column)
+        failed.setdefault(key, []).append(name)
+    for (kind, message, line, column), names in failed.items():
         errors.append(
-            RewardError(err.type, f"situation '{name}': {err.message}", err.line, err.column)
+            RewardError(kind, _with_situations(message, names, situations, limits), line, column)
         )
     warnings = []
     if result.weak:
@@ -121,23 +128,131 @@ def validate_reward_function(
     return ValidationResult(errors, rewards, result.layers, result.output, warnings)
 
 
+#: " at step 12" in the sandbox's messages: differs between situations, not between errors.
+_STEP = re.compile(r" at step \d+")
+_TIMEOUT = " s per call"  # the sandbox's words for a call that overran its limit
+
+
+def _with_situations(
+    message: str, names: list[str], situations: tuple[str, ...], limits: SandboxLimits
+) -> str:
+    """The error's message once, with the situations it happened in."""
+    if _TIMEOUT in message:
+        last = names[-1] == situations[-1]
+        stopped = "" if last else " Validation stopped there: the later situations did not run."
+        return (
+            f"situation '{names[0]}': reward_function took longer than "
+            f"{limits.per_call_seconds:g} s per call (a loop that never ends?).{stopped}"
+        )
+    if len(names) == 1:
+        return f"situation '{names[0]}': {message}"
+    if len(names) == len(situations) and len(names) > 1:
+        return f"in all {len(names)} test situations: {message}"
+    quoted = ", ".join(f"'{n}'" for n in names)
+    return f"situations {quoted}: {message}"
+
+
+_REFUSED = re.compile(r"^(use of|access to attribute) '([^']+)' is not allowed$")
+
+
+def _as_permission_error(err: RewardError) -> RewardError:
+    """A refused name (``os.system``, ``open``, ``eval``) is a permission problem, not bad
+    syntax: report it as DeepRacer's IMPORT_ERROR, saying what is refused and why."""
+    match = _REFUSED.match(err.message) if err.type == "SYNTAX_ERROR" else None
+    if match is None:
+        return err
+    return RewardError(
+        "IMPORT_ERROR",
+        f"'{match.group(2)}' is not permitted in a reward function (no files, processes, "
+        "network or introspection)",
+        err.line,
+        err.column,
+    )
+
+
+def _placed(err: RewardError, source: str) -> RewardError:
+    """A bad return value has no traceback; point at the ``return`` that produced it."""
+    if err.line is not None or not err.message.startswith("reward_function returned"):
+        return err
+    lines = _return_lines(source, err.message)
+    if len(lines) == 1:
+        return RewardError(err.type, err.message, lines[0], err.column)
+    if lines:
+        where = ", ".join(str(n) for n in lines)
+        return RewardError(err.type, f"{err.message} (a return on line {where})", lines[0])
+    return err
+
+
+def _return_lines(source: str, message: str) -> list[int]:
+    """Lines of ``reward_function``'s own ``return`` statements that may have given the value
+    in ``message``: those returning a literal of the same kind when there are any, else all."""
+    try:
+        tree = ast.parse(source)
+    except (SyntaxError, ValueError, RecursionError):
+        return []
+    defs = [n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "reward_function"]
+    if not defs:
+        return []
+    returns: list[ast.Return] = []
+    todo: list[ast.AST] = list(defs[-1].body)
+    while todo:
+        node = todo.pop()
+        if isinstance(node, ast.Return):
+            returns.append(node)
+        if not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda | ast.ClassDef):
+            todo.extend(ast.iter_child_nodes(node))
+    returns.sort(key=lambda r: r.lineno)
+    shown = message.removeprefix("reward_function returned ")
+
+    def kind(node: ast.Return) -> str:
+        value = node.value
+        if value is None or (isinstance(value, ast.Constant) and value.value is None):
+            return "none"
+        if isinstance(value, ast.JoinedStr) or (
+            isinstance(value, ast.Constant) and isinstance(value.value, str)
+        ):
+            return "str"
+        if isinstance(value, ast.List | ast.ListComp | ast.Tuple | ast.Dict | ast.Set):
+            return "container"
+        return "other"
+
+    wanted = (
+        "str" if shown.startswith(("'", '"'))
+        else "none" if shown.startswith("None")
+        else "container" if shown.startswith(("an object of type list", "an object of type tuple",
+                                              "an object of type dict", "an object of type set"))
+        else ""
+    )  # fmt: skip
+    matching = [r.lineno for r in returns if wanted and kind(r) == wanted]
+    return matching or [r.lineno for r in returns]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m training.rewards.validation",
         description="Validate a DeepRacer reward function on a track; print JSON.",
     )
     parser.add_argument("path", help="the reward function's .py file")
-    parser.add_argument("--track", required=True, help="track id, e.g. racecraft_oval")
+    parser.add_argument(
+        "--tracks-dir",
+        default=os.environ.get("RACECRAFT_TRACKS_DIR"),
+        help="folder of imported track files (default: $RACECRAFT_TRACKS_DIR, as the console)",
+    )
+    parser.add_argument("--track", required=True, metavar="TRACK",
+                        help="track id: a built-in track or one in the tracks folder")  # fmt: skip
     args = parser.parse_args(argv)
+    catalog = TrackCatalog([args.tracks_dir] if args.tracks_dir else [])
     try:
         with open(args.path, encoding="utf-8") as f:
             source = f.read()
-        result = validate_reward_function(source, args.track)
+        result = validate_reward_function(source, catalog.load(args.track))
     except (OSError, UnicodeDecodeError) as exc:
         print(json.dumps({"ok": False, "usage_error": str(exc)}), file=sys.stderr)
         return 2
     except UnknownTrackError as exc:
-        print(json.dumps({"ok": False, "usage_error": str(exc)}), file=sys.stderr)
+        known = ", ".join(catalog.ids())
+        print(json.dumps({"ok": False, "usage_error": f"{exc}; known tracks: {known}"}),
+              file=sys.stderr)  # fmt: skip
         return 2
     print(json.dumps(result.to_dict(), indent=2))
     return 0 if result.ok else 1

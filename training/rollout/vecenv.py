@@ -195,7 +195,7 @@ class _WorkerVecEnv(_RunnerVecEnv):
         checked.number(info.get("progress"), "info progress", bound=1e6)
         checked.integer(info.get("lap", 1), "info lap", high=10_000)
         if info.get("trace") is not None:
-            checked.scalars(info["trace"], "info trace")
+            _check_trace(info["trace"])
         if "lap_times" in info:
             checked.scalars(info["lap_times"], "info lap_times", limit=10_000)
         if type(info.get("TimeLimit.truncated", True)) is not bool:
@@ -293,3 +293,16 @@ class SandboxedVecEnv(_WorkerVecEnv):
                 pass
             worker.close(grace_seconds=2.0)
         self.workers = []
+
+
+def _check_trace(row: Any) -> None:
+    """A sim-trace row: scalars, except the action, which a continuous action space reports
+    as its (steering, speed) pair."""
+    if not isinstance(row, list):
+        raise checked.Malformed("info trace: expected a list")
+    pairs = [v for v in row if isinstance(v, list)]
+    if len(pairs) > 1:
+        raise checked.Malformed("info trace: more than one list in a row")
+    for pair in pairs:
+        checked.scalars(pair, "info trace action", limit=2)
+    checked.scalars([v for v in row if not isinstance(v, list)], "info trace")

@@ -16,6 +16,7 @@ from training.sandbox.errors import (
     RewardFunctionError,
     SandboxError,
     SandboxProtocolError,
+    SandboxTimeout,
     SandboxUnavailable,
 )
 from training.sandbox.guard import copy_params
@@ -127,6 +128,7 @@ def evaluate_reward(
     python_guards: bool = True,
     disabled_layers: tuple[str, ...] = (),
     deadline_seconds: float | None = None,
+    stop_after_timeout: bool = False,
 ) -> EvaluationResult:
     """Call ``reward_function`` of ``source`` on each params dict, in a sandbox.
 
@@ -135,6 +137,9 @@ def evaluate_reward(
     does not stop the others; a call that kills the sandbox (timeout, crash, malformed data)
     is reported and the remaining calls run in a fresh sandbox, while time remains. A module
     that does not load gives the same error for every call.
+    With ``stop_after_timeout`` a call that overruns its limit ends the evaluation: the
+    outcomes stop there (a function that never returns costs one call's limit, not one per
+    params dict).
     Raises SandboxUnavailable (before running any user code) when this machine cannot isolate
     it and weak isolation was not accepted.
     """
@@ -194,6 +199,9 @@ def evaluate_reward(
             )
             outcomes[first] = RewardOutcome(None, error)
             start = first + 1
+            if stop_after_timeout and isinstance(exc, SandboxTimeout):
+                kept = [o for o in outcomes[:start] if o is not None]
+                return EvaluationResult(kept, layers, "".join(output), weak)
         finally:
             sandbox.close()
     done = [o if o is not None else RewardOutcome(None, None) for o in outcomes]

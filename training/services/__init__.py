@@ -7,6 +7,7 @@ a message a user can act on. Side effects on other processes start only after th
 - :mod:`~training.services.jobs`: the one state machine of training and evaluation jobs.
 - :mod:`~training.services.checks`: tracks, configurations, reward functions, names, quotas.
 - :mod:`~training.services.downloads`: what a user downloads.
+- :mod:`~training.services.tracks`: importing a track file from the console.
 
 Reads go through :mod:`training.selectors`.
 """
@@ -43,7 +44,9 @@ from training.services.models import (
     model_delete,
     model_import,
     model_metadata,
+    model_update_reward,
 )
+from training.services.tracks import TrackCheck, default_track_id, track_check, track_import
 
 __all__ = [
     "MAX_MINUTES",
@@ -72,6 +75,11 @@ __all__ = [
     "model_import",
     "model_metadata",
     "model_settle",
+    "model_update_reward",
+    "TrackCheck",
+    "default_track_id",
     "track_catalog",
+    "track_check",
+    "track_import",
     "training_start",
 ]

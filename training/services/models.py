@@ -27,6 +27,7 @@ from training.services.checks import (
     check_model_spec,
     check_name,
     check_reward,
+    check_track,
     track_catalog,
 )
 from training.services.jobs import model_has_active_jobs, owned
@@ -46,6 +47,78 @@ def _store_model_files(model: RacingModel) -> None:
         "application/json",
     )
     store.put_bytes(keys.reward_function, model.reward_function.encode(), "text/x-python")
+    store.put_bytes(
+        f"{keys.prefix}{TRAINING_PARAMS}", training_params(model).encode(), "application/yaml"
+    )
+
+
+#: Where the training environment is written, inside the model's folder: under ``ip/`` so the
+#: virtual-model download carries it and an import reads it back (DeepRacer keeps the same
+#: facts in ``training_params.yaml``).
+TRAINING_PARAMS = "ip/training_params.yaml"
+
+
+def training_params(model: RacingModel) -> str:
+    """DeepRacer's ``training_params.yaml`` keys for the model's environment, plus ours."""
+    lines = {
+        "WORLD_NAME": model.track_id,
+        "RACE_TYPE": model.race_type,
+        "REVERSE_DIR": "true" if model.direction == "cw" else "false",
+        "RACECRAFT_DIRECTION": model.direction,
+        "RACECRAFT_SEED": str(model.seed),
+        "RACECRAFT_MAX_MINUTES": str(model.max_minutes),
+    }
+    return "".join(f'{key}: "{value}"\n' for key, value in lines.items())
+
+
+def read_training_params(files: dict[str, bytes]) -> dict[str, str]:
+    """The flat ``KEY: value`` pairs of an archive's ``training_params.yaml`` (in any folder;
+    a yaml library is not needed for DeepRacer's flat file). Empty when there is none."""
+    name = next((n for n in sorted(files) if n.rsplit("/", 1)[-1] == "training_params.yaml"), None)
+    if name is None:
+        return {}
+    try:
+        text = files[name].decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return {}
+    params: dict[str, str] = {}
+    for line in text.splitlines()[:500]:
+        key, sep, value = line.partition(":")
+        if sep and key.strip() and not key.startswith((" ", "#", "-")):
+            params[key.strip()] = value.split(" #")[0].strip().strip("'\"")
+    return params
+
+
+def _imported_environment(params: dict[str, str]) -> tuple[str, str, int | None, int, str]:
+    """``(track_id, direction, seed, max_minutes, note)`` from an archive's training params;
+    the note says what could not be kept."""
+    ids = track_catalog().ids()
+    world = params.get("WORLD_NAME", "")
+    note = ""
+    if world in ids:
+        track_id = world
+    else:
+        track_id = _default_track()
+        note = (
+            f"the archive was trained on {world!r}, which is not installed here; it uses "
+            f"{track_id} (import the track, then clone the model onto it)"
+            if world
+            else f"the archive does not name its track; it uses {track_id}"
+        )
+    direction = params.get("RACECRAFT_DIRECTION") or (
+        "cw" if params.get("REVERSE_DIR", "").lower() == "true" else "native"
+    )
+    if direction not in ("native", "ccw", "cw"):
+        direction = "native"
+    seed = params.get("RACECRAFT_SEED", "")
+    minutes = params.get("RACECRAFT_MAX_MINUTES", "")
+    return (
+        track_id,
+        direction,
+        int(seed) if seed.isdigit() and int(seed) < 2**31 else None,
+        int(minutes) if minutes.isdigit() and 1 <= int(minutes) <= 1440 else 10,
+        note,
+    )
 
 
 def model_metadata(model: RacingModel) -> ModelMetadata:
@@ -125,10 +198,11 @@ def model_clone(
     checkpoint: str = "best",
 ) -> RacingModel:
     """A new model that starts from ``model``'s best (or last) checkpoint. Algorithm, network,
-    sensors, action-space type and number of actions stay as they were."""
+    sensors, action-space type and number of actions stay as they were.
+
+    A model without a checkpoint (never trained, or failed before its first one) is copied
+    as a fresh model: the same configuration, trained from scratch, with no parent."""
     owned(model, owner)
-    if not model.has_checkpoint:
-        raise ServiceError("this model has no trained checkpoint to start from yet")
     if checkpoint not in ("best", "last"):
         raise ServiceError("clone from the best or the last checkpoint", field="checkpoint")
     new_actions = model.action_space if action_space is None else action_space
@@ -157,6 +231,8 @@ def model_clone(
         max_minutes=max_minutes or model.max_minutes,
         validate_reward=True,
     )
+    if not model.has_checkpoint:
+        return clone  # a fresh copy: nothing to start from
     store = get_store()
     src, dst = keys_for(model.pk), keys_for(clone.pk)
     try:
@@ -173,6 +249,23 @@ def model_clone(
     return clone
 
 
+def model_update_reward(*, model: RacingModel, user, reward_function: str) -> RacingModel:
+    """Change the reward function of a model that has never trained (as on DeepRacer, a
+    model's configuration is fixed once training starts: clone it to change it)."""
+    owned(model, user)
+    if model.has_checkpoint or model.training_jobs.exists() or model.is_busy:
+        raise ServiceError(
+            "the reward function is fixed once training has started; clone the model to change it"
+        )
+    check_reward(reward_function, model.track_id, model.direction)
+    model.reward_function = reward_function
+    model.save(update_fields=["reward_function", "updated_at"])
+    get_store().put_bytes(
+        keys_for(model.pk).reward_function, reward_function.encode(), "text/x-python"
+    )
+    return model
+
+
 def _delete_quietly(model: RacingModel) -> None:
     """Undo a model whose files could not be completed."""
     try:
@@ -185,26 +278,39 @@ def _delete_quietly(model: RacingModel) -> None:
 def model_import(*, owner, name: str, upload, description: str = "") -> RacingModel:
     """A model from an uploaded archive: Racecraft's virtual model, or a DeepRacer model (the
     car's archive, the AWS console's virtual model, a DeepRacer-for-Cloud model folder),
-    validated; its weights become a Racecraft checkpoint without unpickling anything."""
+    validated; its weights become a Racecraft checkpoint without unpickling anything. Its
+    track, direction, seed and stop condition come from the archive's ``training_params.yaml``
+    when it has one; ``model.import_note`` says what could not be kept (an unknown track)."""
     check_name(owner, name)
     check_model_quota(owner)
-    imported, note = _read_model_upload(upload)
+    imported, source_note = _read_model_upload(upload)
     meta = imported.metadata
-    hyperparameters = imported.hyperparameters or defaults_for(meta.training_algorithm)
+    track_id, direction, seed, minutes, note = _imported_environment(
+        read_training_params(imported.extra_files)
+    )
+    try:
+        check_track(track_id, direction)
+    except ServiceError:
+        direction = "native"
     model = model_create(
         owner=owner,
         name=name,
-        description=description or note,
-        track_id=_default_track(),
+        description=description or source_note,
+        track_id=track_id,
+        direction=direction,
+        seed=seed,
         sensors=list(meta.sensor),
         action_space=meta.actions.to_metadata(),
         algorithm=meta.training_algorithm,
         neural_network=meta.neural_network,
-        hyperparameters=hyperparameters.to_json(),
+        hyperparameters=(
+            imported.hyperparameters or defaults_for(meta.training_algorithm)
+        ).to_json(),
         reward_function=imported.reward_function or example_source(DEFAULT_EXAMPLE),
-        max_minutes=10,
+        max_minutes=minutes,
         validate_reward=False,
     )
+    model.import_note = note  # for the caller to show; not stored
     store, keys = get_store(), keys_for(model.pk)
     for key in (keys.best, keys.last, keys.checkpoint("initial")):
         store.put_bytes(key, imported.checkpoint_bytes)

@@ -16,6 +16,7 @@ from training import dispatch
 from training.models import RacingModel
 from training.rollout.backends import LocalRollouts, RedisRollouts, RolloutBackend
 from training.rollout.envs import EnvSpec
+from training.sandbox import RewardFunctionError
 from training.services import job_fail, job_heartbeat, job_stop_requested
 
 log = logging.getLogger(__name__)
@@ -114,7 +115,10 @@ def csv_text(rows: list[list]) -> str:
 def fail_with(job, exc: Exception, *, what: str, clear: tuple[type[Exception], ...]) -> str:
     """Fail ``job`` with ``exc``: errors of the ``clear`` types already speak to the user;
     anything else is logged with its traceback and named. Returns ``"failed"``."""
-    if isinstance(exc, clear):
+    if isinstance(exc, RewardFunctionError):
+        line = f" (line {exc.error.line})" if exc.error.line else ""
+        message = f"the reward function failed during training{line}: {exc.error.message}"
+    elif isinstance(exc, clear):
         message = str(exc)
     else:
         log.error("%s job %s failed", what, job.pk, exc_info=exc)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ipaddress
 import os
 import sys
 from argparse import ArgumentParser
@@ -33,6 +34,7 @@ class Command(BaseCommand):
         )
 
     def handle(self, *args: Any, host: str, port: int, concurrency: int, **options: Any) -> None:
+        refuse_debug_on_open_address(host, debug=settings.DEBUG)
         try:
             call_command("build_assets", verbosity=options["verbosity"])
         except CommandError as exc:
@@ -55,3 +57,20 @@ class Command(BaseCommand):
             console_run(launch, out=sys.stdout)
         except LaunchError as exc:
             raise CommandError(f"racecraft stopped: {exc}") from exc
+
+
+def refuse_debug_on_open_address(host: str, *, debug: bool) -> None:
+    """DEBUG pages show settings and tracebacks to whoever reaches them: with DEBUG on, the
+    console listens only on this machine (loopback). Raises CommandError otherwise."""
+    if not debug:
+        return
+    try:
+        loopback = ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        loopback = host == "localhost"
+    if not loopback:
+        raise CommandError(
+            f"refusing to listen on {host} with DEBUG on: debug pages show settings and "
+            "tracebacks to anyone who can reach them. Set DEBUG=0 (with SECRET_KEY and "
+            "ALLOWED_HOSTS) for a console other machines reach, or listen on 127.0.0.1."
+        )

@@ -282,7 +282,7 @@ def test_create_train_evaluate_export_import(store_dir, alice, files, tmp_path, 
     assert pressed, out
     assert job.status == JobStatus.COMPLETED and job.stopped_by == "user", out
     assert "Stopping: the job ends at its next safe point" in out
-    assert re.search(r"iteration \d+  eval \d+\.\d%  best \d+\.\d%", out), out
+    assert re.search(r"iteration \d+ running  \d+ episodes  eval \d+\.\d%  best \d+\.\d%", out), out
     assert "Completed (stopped by you)" in out
     assert job.worker.startswith("cli-")
     model.refresh_from_db()

@@ -275,3 +275,23 @@ def test_an_archive_that_is_neither_kind_is_refused_clearly(alice):
         services.model_import(owner=alice, name="junk", upload=buffer.getvalue())
     assert refused.value.field == "archive" and refused.value.message
     assert not RacingModel.objects.filter(name="junk").exists()
+
+
+def test_a_reward_that_fails_only_in_training_fails_the_job_once_with_its_line(alice):
+    from training.sandbox import RewardError, RewardFunctionError, SandboxError
+    from training.worker.common import fail_with
+
+    job = TrainingJob.objects.create(model=create(alice), max_minutes=5,
+                                     status=JobStatus.IN_PROGRESS)  # fmt: skip
+    error = RewardError("TEST_FAILURE", "ZeroDivisionError: division by zero", line=3)
+    assert fail_with(job, RewardFunctionError(error), what="training",
+                     clear=(SandboxError,)) == "failed"  # fmt: skip
+    job.refresh_from_db()
+    assert job.status == JobStatus.FAILED
+    assert job.error == (
+        "the reward function failed during training (line 3): ZeroDivisionError: division by zero"
+    )
+    # A second report of the same failure changes nothing: the job has its one final state.
+    assert not services.job_fail(job=job, error="again")
+    job.refresh_from_db()
+    assert job.error.endswith("division by zero")

@@ -10,7 +10,12 @@ from typing import Any
 from django.core.management.base import BaseCommand, CommandError
 
 from training import services
-from training.management.cli import add_owner_argument, service_errors
+from training.management.cli import (
+    action_summary,
+    add_owner_argument,
+    add_track_argument,
+    service_errors,
+)
 from training.models import Direction
 from training.rl.metadata import MetadataError, parse_metadata
 from training.selectors import user_by_username
@@ -40,6 +45,31 @@ def read_hyperparameters(path: str) -> dict:
     return data
 
 
+EXAMPLE_METADATA = """\
+Example model_metadata.json (DeepRacer's format; a discrete action space of 3 actions):
+
+  {
+    "action_space": [
+      {"steering_angle": -30, "speed": 1.0},
+      {"steering_angle": 0, "speed": 1.5},
+      {"steering_angle": 30, "speed": 1.0}
+    ],
+    "sensor": ["FRONT_FACING_CAMERA"],
+    "neural_network": "RACECRAFT_LEAN_CNN",
+    "training_algorithm": "clipped_ppo",
+    "action_space_type": "discrete",
+    "version": "5"
+  }
+
+A continuous action space instead (PPO or "sac"):
+    "action_space": {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 2}},
+    "action_space_type": "continuous"
+
+Networks: RACECRAFT_LEAN_CNN (fast on a CPU), DEEP_CONVOLUTIONAL_NETWORK_SHALLOW (DeepRacer's
+3-layer CNN), DEEP_CONVOLUTIONAL_NETWORK (5 layers), DEEP_CONVOLUTIONAL_NETWORK_DEEP.
+"""
+
+
 class Command(BaseCommand):
     help = (
         "Create a model from DeepRacer's files: reward_function.py, model_metadata.json (action "
@@ -47,6 +77,14 @@ class Command(BaseCommand):
         "function is checked in the sandbox first. Prints the new model's id (only the id "
         "with -v 0)."
     )
+
+    def create_parser(self, prog_name: str, subcommand: str, **kwargs: Any):
+        from argparse import RawDescriptionHelpFormatter
+
+        parser = super().create_parser(prog_name, subcommand, **kwargs)
+        parser.epilog = EXAMPLE_METADATA
+        parser.formatter_class = RawDescriptionHelpFormatter
+        return parser
 
     def add_arguments(self, parser: ArgumentParser) -> None:
         add_owner_argument(parser, required=True)
@@ -58,9 +96,7 @@ class Command(BaseCommand):
             metavar="PATH",
             help="hyperparameters.json (default: the console's defaults for the algorithm)",
         )
-        parser.add_argument(
-            "--track", default="racecraft_summit", help="track id (default: racecraft_summit)"
-        )
+        add_track_argument(parser, default="racecraft_summit")
         parser.add_argument(
             "--direction",
             choices=Direction.values,
@@ -107,13 +143,8 @@ class Command(BaseCommand):
         if options["verbosity"] == 0:
             self.stdout.write(str(model.pk))
             return
-        actions = (
-            f"{len(model.action_space)} actions"
-            if model.action_space_type == "discrete"
-            else "continuous actions"
-        )
         self.stdout.write(
-            f"Created model {model.pk}: {model.name} ({model.algorithm}, {actions}, "
+            f"Created model {model.pk}: {model.name} ({model.algorithm}, {action_summary(model)}, "
             f"{', '.join(model.sensors)}, {model.neural_network}) on {model.track_id}, "
             f"{model.max_minutes} min of training"
         )

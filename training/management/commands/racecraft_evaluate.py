@@ -11,6 +11,7 @@ from training import services
 from training.management.cli import (
     add_model_arguments,
     add_queue_argument,
+    add_track_argument,
     evaluation_progress,
     owner_and_model,
     require_completed,
@@ -27,13 +28,16 @@ class Command(BaseCommand):
         "Evaluate a trained model (its best checkpoint) for 3-5 laps from the start line, "
         "with DeepRacer's penalties, and print the results table. By default it runs in this "
         "process (Ctrl-C stops it and keeps the laps driven so far); with --queue a Celery "
-        "worker runs it and this command follows it."
+        "worker runs it and this command follows it. There is no --seed: an evaluation is "
+        "deterministic (the car starts on the start line, the simulator is reset with seed 0 "
+        "and the policy takes its most likely action), so the same model and settings drive "
+        "the same laps. The training seed is racecraft_create_model --seed."
     )
 
     def add_arguments(self, parser: ArgumentParser) -> None:
         add_model_arguments(parser)
         parser.add_argument("--laps", type=int, default=3, help="laps to drive, 3-5 (default 3)")
-        parser.add_argument("--track", help="track id (default: the model's training track)")
+        add_track_argument(parser, default=None)
         parser.add_argument(
             "--direction",
             choices=Direction.values,

@@ -8,7 +8,12 @@ from typing import Any
 from django.core.management.base import BaseCommand, CommandError
 
 from training import services
-from training.management.cli import add_owner_argument, service_errors
+from training.management.cli import (
+    action_summary,
+    add_owner_argument,
+    elapsed_ticker,
+    service_errors,
+)
 from training.selectors import user_by_username
 
 
@@ -32,7 +37,11 @@ class Command(BaseCommand):
             upload = open(archive, "rb")  # noqa: SIM115 - closed below
         except OSError as exc:
             raise CommandError(f"cannot read {archive}: {exc.strerror or exc}") from None
-        with upload, service_errors(f"cannot import {archive}"):
+        ticker = elapsed_ticker(
+            self.stdout if options["verbosity"] else None,
+            f"Importing {archive}: reading the archive and checking its checkpoint",
+        )
+        with upload, service_errors(f"cannot import {archive}"), ticker:
             model = services.model_import(
                 owner=owner,
                 name=options["name"],
@@ -43,6 +52,9 @@ class Command(BaseCommand):
             self.stdout.write(str(model.pk))
             return
         self.stdout.write(
-            f"Imported model {model.pk}: {model.name} ({model.algorithm}, "
-            f"{model.action_space_type} actions, {', '.join(model.sensors)})"
+            f"Imported model {model.pk}: {model.name} ({model.algorithm}, {action_summary(model)}, "
+            f"{', '.join(model.sensors)}) on {model.track_id} ({model.direction}), "
+            f"seed {model.seed}"
         )
+        if model.import_note:
+            self.stderr.write(f"Note: {model.import_note}")

@@ -60,8 +60,7 @@ class Command(BaseCommand):
             + f" after {job.iterations} iterations, {job.episodes} episodes, "
             f"{mmss(job.elapsed_seconds)}"
         )
-        if job.error:
-            self.stderr.write(job.error)
+        # A failed job's error is said once, by the CommandError of require_completed.
         if job.best_iteration is not None:
             self.stdout.write(
                 f"Best checkpoint: iteration {job.best_iteration}, "

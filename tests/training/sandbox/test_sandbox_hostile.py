@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import redis
 
-from tests.training.sandbox_support import host_intact, real_params
+from tests.training.sandbox.sandbox_support import host_intact, real_params
 from training.sandbox import SandboxLimits, check_source, evaluate_reward
 
 HOSTILE_DIR = Path(__file__).parent / "hostile"
@@ -141,7 +141,7 @@ def arena(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, redis_url: str):
         "@TARGET@": str(target),
         "@PORT@": str(listener.getsockname()[1]),
         "@REDIS_SOCKET@": socket_path or str(tmp_path / "no-redis.sock"),
-        "@ROOT@": str(Path(__file__).resolve().parents[2]),
+        "@ROOT@": str(Path(__file__).resolve().parents[3]),
         "dir": tmp_path,
         "listener": listener,
         "redis": store,

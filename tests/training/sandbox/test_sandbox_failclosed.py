@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from django.core.checks import ERROR, INFO, WARNING
 
-from tests.training.sandbox_support import TRACK_ID, host_intact, real_params
+from tests.training.sandbox.sandbox_support import TRACK_ID, host_intact, real_params
 from training import checks
 from training.rewards.validation import validate_reward_function
 from training.rollout.envs import EnvSpec

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.training.sandbox_support import host_intact, real_params
+from tests.training.sandbox.sandbox_support import host_intact, real_params
 from training.sandbox import SandboxLimits, evaluate_reward, isolation_support, landlock
 
 LIMITS = SandboxLimits(per_call_seconds=1.0, cpu_seconds=30)
@@ -148,7 +148,7 @@ def test_a_caller_without_privileges_gets_the_same_layers(arena: dict) -> None:
         source,
     ]
     out = subprocess.run(
-        cmd, capture_output=True, text=True, timeout=60, cwd=Path(__file__).resolve().parents[2]
+        cmd, capture_output=True, text=True, timeout=60, cwd=Path(__file__).resolve().parents[3]
     )
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout.strip().splitlines()[-1])

@@ -13,7 +13,7 @@ import numpy as np
 import psutil
 import pytest
 
-from tests.training.sandbox_support import host_intact, real_params
+from tests.training.sandbox.sandbox_support import host_intact, real_params
 from training.sandbox import (
     RewardFunctionError,
     SandboxCrashed,

@@ -4,7 +4,9 @@ browser polls it; per-user limits; a slow validation does not hold up other requ
 from __future__ import annotations
 
 import json
+import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -14,7 +16,7 @@ from django.contrib.auth import get_user_model
 from django.test import Client
 
 from console.celery import app as celery_app
-from tests.training.sandbox_support import celery_worker
+from tests.support import ChildProcess, celery_worker_process
 
 URL = "/api/reward/validate"
 OK = "def reward_function(params):\n    return float(params['progress']) / 100 + 1e-3\n"
@@ -49,9 +51,12 @@ def charlie_client(db) -> Client:
 
 
 @pytest.fixture
-def worker(redis_env: dict[str, str], tmp_path: Path):
-    with celery_worker("default", redis_env, tmp_path / "worker.log"):
-        yield
+def worker(redis_env: dict[str, str], tmp_path: Path) -> Iterator[ChildProcess]:
+    env = {**os.environ, **redis_env, "DJANGO_SETTINGS_MODULE": "console.settings"}
+    with celery_worker_process(
+        queues=["default"], env=env, log_path=tmp_path / "worker.log"
+    ) as process:
+        yield process
 
 
 def start(client: Client, source: str, track: str = "racecraft_oval"):

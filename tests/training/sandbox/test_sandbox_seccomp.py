@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from tests.training.sandbox_support import real_params
+from tests.training.sandbox.sandbox_support import real_params
 from training.sandbox import SandboxLimits, evaluate_reward, seccomp
 
 #: Syscall numbers from each architecture's unistd.h.

@@ -11,7 +11,7 @@ import pytest
 import redis
 
 from tests.conftest import REDIS_PREFIX
-from tests.training.sandbox_support import host_intact, real_params
+from tests.training.sandbox.sandbox_support import host_intact, real_params
 from training.rollout.remote import RemoteSlot, _push
 from training.rollout.vecenv import RolloutError, _WorkerVecEnv
 from training.sandbox import SandboxLimits, evaluate_reward
@@ -106,7 +106,7 @@ FORGED_STEPS = {
     "info_extra_key": _step(infos=[GOOD_INFO, dict(GOOD_INFO, evil=1)]),
     "info_progress_nan": _step(infos=[GOOD_INFO, dict(GOOD_INFO, progress=float("nan"))]),
     "info_status_number": _step(infos=[GOOD_INFO, dict(GOOD_INFO, status=3)]),
-    "info_trace_nested": _step(infos=[GOOD_INFO, dict(GOOD_INFO, trace=[[1, 2]])]),
+    "info_trace_nested": _step(infos=[GOOD_INFO, dict(GOOD_INFO, trace=[[1, [2]]])]),
     "terminal_obs_shape": _step(
         infos=[GOOD_INFO, dict(GOOD_INFO, terminal_observation=np.zeros((2, 2), np.uint8))]
     ),
@@ -159,3 +159,14 @@ def test_forged_remote_replies_are_malformed_data(message: object, redis_url: st
     finally:
         client.delete(slot.reply_key)
         client.close()
+
+
+def test_a_trace_row_may_carry_a_continuous_action_pair_and_nothing_deeper() -> None:
+    from training.rollout.vecenv import _check_trace
+    from training.sandbox.checked import Malformed
+
+    _check_trace([1, 2, 0.5, 1.0, 0.1, 3, [12.5, 1.7], 0.3])  # continuous: (steering, speed)
+    _check_trace([1, 2, 0.5, 1.0, 0.1, 3, 4, 0.3])  # discrete: the action's index
+    for forged in ([[1, [2]]], [[1, 2, 3]], [[1], [2]], "row", [float("nan")]):
+        with pytest.raises(Malformed):
+            _check_trace(forged)

@@ -14,7 +14,7 @@ import time
 import psutil
 import pytest
 
-from tests.training.sandbox_support import host_intact, real_params
+from tests.training.sandbox.sandbox_support import host_intact, real_params
 from training.sandbox import SandboxLimits, SandboxProcess, SandboxTimeout, evaluate_reward
 from training.sandbox.oneshot import SERVE_TARGET
 

@@ -3,20 +3,13 @@
 from __future__ import annotations
 
 import os
-import socket
-import subprocess
-import sys
 import threading
-import time
-import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import psutil
-
-from console.celery import app as celery_app
 
 TRACK_ID = "racecraft_oval"
 
@@ -63,32 +56,3 @@ def host_intact(*watched_dirs: Path) -> Iterator[None]:
     assert not leaked, f"descriptors leaked: {leaked}"
     for d, before in listings.items():
         assert sorted(os.listdir(d)) == before, f"files changed in {d}"
-
-
-@contextmanager
-def celery_worker(queue: str, env: dict[str, str], log_path: Path) -> Iterator[None]:
-    """A real Celery worker of this checkout on ``queue`` (``env`` puts it on the tests'
-    Redis), stopped afterwards; waits until it answers a ping."""
-    root = Path(__file__).resolve().parents[2]
-    full_env = {**os.environ, **env, "DJANGO_SETTINGS_MODULE": "console.settings"}
-    name = f"{queue}-{uuid.uuid4().hex[:8]}@%h"
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "celery", "-A", "console", "worker", "-Q", queue, "-c", "1",
-             "-n", name, "--without-gossip", "--without-mingle", "-l", "INFO"],
-            cwd=root, env=full_env, stdout=log, stderr=subprocess.STDOUT,
-        )  # fmt: skip
-        try:
-            deadline = time.monotonic() + 90
-            me = name.replace("%h", socket.gethostname())
-            while not celery_app.control.ping(destination=[me], timeout=1.0):
-                assert proc.poll() is None, log_path.read_text()
-                assert time.monotonic() < deadline, "the worker did not start"
-            yield
-        finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()

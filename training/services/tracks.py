@@ -1,0 +1,86 @@
+"""Tracks: importing a DeepRacer track file from the console.
+
+The same validation as ``manage.py import_track`` (:func:`racing.tracks.import_track`: the id,
+the size, the waypoints, the geometry), run in a scratch folder next to the catalogue; only a
+file that passed is moved in, with ``os.replace``, so a bad or interrupted upload never leaves
+a half-written track behind. Imported tracks are shared by every user of the installation.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from django.conf import settings
+
+from racing.preview import render_preview_png
+from racing.track import TrackError
+from racing.tracks import MAX_TRACK_FILE_BYTES, TrackCatalog, TrackInfo, import_track
+from training.errors import ServiceError
+from training.services.checks import track_catalog
+
+
+@dataclass(frozen=True)
+class TrackCheck:
+    """A track file that passed validation: what the catalogue would show, and its preview."""
+
+    info: TrackInfo
+    preview_png: bytes
+
+
+def default_track_id(filename: str) -> str:
+    """A track id from an upload's file name (``reInvent 2018.npy`` → ``reInvent_2018``)."""
+    stem = Path(filename or "track").stem
+    return re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_-")[:64] or "track"
+
+
+def _validated(data: bytes, track_id: str, name: str, scratch: Path) -> TrackInfo:
+    if not data:
+        raise ServiceError("choose a DeepRacer .npy track file", field="file")
+    if len(data) > MAX_TRACK_FILE_BYTES:
+        raise ServiceError(
+            f"the file is {len(data):,} bytes; a track file is at most {MAX_TRACK_FILE_BYTES:,}",
+            field="file",
+        )
+    if track_id in track_catalog().ids():
+        raise ServiceError(f"a track with id {track_id!r} exists already", field="track_id")
+    try:
+        return import_track(data, track_id=track_id, dest_dir=scratch, name=name)
+    except TrackError as exc:
+        field = "track_id" if "track id" in str(exc) or "built-in" in str(exc) else "file"
+        raise ServiceError(str(exc), field=field) from None
+
+
+def _scratch(dest: Path) -> tempfile.TemporaryDirectory:
+    dest.mkdir(parents=True, exist_ok=True)
+    return tempfile.TemporaryDirectory(prefix=".upload-", dir=dest)  # same file system
+
+
+def track_check(*, data: bytes, track_id: str, name: str = "") -> TrackCheck:
+    """Validate an uploaded track file without adding it; the preview shows it as the gallery
+    will. Raises :class:`ServiceError` naming the field at fault."""
+    dest = Path(settings.RACECRAFT_TRACKS_DIR)
+    with _scratch(dest) as scratch:
+        info = _validated(data, track_id, name, Path(scratch))
+        track = TrackCatalog([scratch]).load(track_id)
+        return TrackCheck(info, render_preview_png(track, width_px=480))
+
+
+def track_import(*, user, data: bytes, track_id: str, name: str = "") -> TrackInfo:
+    """Add a validated track file to the catalogue (``RACECRAFT_TRACKS_DIR``) for everyone.
+
+    ``user`` must be signed in. All or nothing: the files are written to a scratch folder and
+    moved in once they passed (the ``.npy`` last, which is what the catalogue lists)."""
+    if user is None or not user.is_authenticated:
+        raise ServiceError("sign in to import a track")
+    dest = Path(settings.RACECRAFT_TRACKS_DIR)
+    with _scratch(dest) as scratch:
+        _validated(data, track_id, name, Path(scratch))
+        if (dest / f"{track_id}.npy").exists():  # raced by another upload
+            raise ServiceError(f"a track with id {track_id!r} exists already", field="track_id")
+        os.replace(Path(scratch) / f"{track_id}.json", dest / f"{track_id}.json")
+        os.replace(Path(scratch) / f"{track_id}.npy", dest / f"{track_id}.npy")
+    return track_catalog().info(track_id)
