@@ -4,6 +4,7 @@ edited reward (the replay runs as a Celery task, in the sandbox)."""
 
 from __future__ import annotations
 
+import re
 import time
 
 import pytest
@@ -51,6 +52,8 @@ def trained(celery_worker) -> int:
 
 
 def test_analysis_heatmaps_episode_and_replay(trained, page, web) -> None:  # noqa: F811
+    from playwright.sync_api import expect
+
     page.goto(f"{web}/accounts/login/")
     page.fill("#id_username", "analyst")
     page.fill("#id_password", PASSWORD)
@@ -62,17 +65,15 @@ def test_analysis_heatmaps_episode_and_replay(trained, page, web) -> None:  # no
     canvas = page.locator("#track-canvas")
     for kind in ("reward", "speed", "action"):
         page.select_option("#heatmap-kind", kind)
-        page.wait_for_function(f"document.getElementById('track-canvas').dataset.kind === '{kind}'")
+        expect(canvas).to_have_attribute("data-kind", kind)
         assert kind in page.locator("#track-legend").inner_text().lower() or kind == "action"
     assert "Most chosen action" in page.locator("#track-legend").inner_text()
     page.locator("#episode-table tbody tr").first.click()
-    page.wait_for_function("document.getElementById('track-canvas').dataset.episode !== ''")
-    assert canvas.get_attribute("data-episode").startswith("0/")
+    expect(canvas).to_have_attribute("data-episode", re.compile(r"^0/\d+$"))
     page.fill("#replay-source", EDITED)
     page.click("#replay-run")
     totals = page.locator("#replay-totals")
-    page.wait_for_function("document.getElementById('replay-totals').dataset.newTotal",
-                           timeout=120_000)  # fmt: skip
+    expect(totals).to_have_attribute("data-new-total", re.compile(r"\d"), timeout=120_000)
     assert float(totals.get_attribute("data-new-total")) > 0
     assert "recorded" in totals.inner_text()
     page.screenshot(path=str(ARTIFACTS / "analysis.png"), full_page=True)
