@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 
 from django.db import transaction
 
@@ -34,6 +35,8 @@ from training.worker.common import (
 )
 
 log = logging.getLogger(__name__)
+EPISODE_COUNT_EVERY_S = 5.0
+"""How often a running job records how many episodes have finished, seconds."""
 CLEAR_ERRORS = (RolloutError, SandboxError, CheckpointError, StoreError)
 """Errors whose message already tells the user what went wrong."""
 
@@ -57,6 +60,8 @@ class JobHooks(TrainingHooks):
         self.should_stop = StopFlag(job)
         hp = parse_hyperparameters(self.model.hyperparameters, self.model.algorithm)
         self.log = TrainingLog(hp.num_episodes_between_training)
+        self._finished = 0  # training episodes finished so far
+        self._counted_at = 0.0
 
     # ---- polled during rollouts
     def frames_wanted(self) -> bool:
@@ -67,6 +72,12 @@ class JobHooks(TrainingHooks):
 
     def on_episode(self, entry: dict) -> None:
         self.log.add_entry(entry)
+        self._finished += 1
+        now = time.monotonic()
+        if now - self._counted_at >= EPISODE_COUNT_EVERY_S:  # the page and the CLI show it
+            self._counted_at = now
+            services.job_heartbeat(job_model=TrainingJob, job_id=self.job.pk,
+                                   episodes=self._finished)  # fmt: skip
 
     # ---- once per iteration
     def on_iteration(self, result: IterationResult, checkpoint: bytes, rows: list[list]) -> None:
@@ -96,7 +107,7 @@ class JobHooks(TrainingHooks):
             ).as_point()  # fmt: skip
             self._store_log(self.log.take(), evaluation=ev)
             progress = {"iterations": n, "total_steps": result.total_steps,
-                        "episodes": self.log.logged}  # fmt: skip
+                        "episodes": self._finished}  # fmt: skip
             if result.best:
                 progress.update(best_iteration=n, best_eval_progress=result.eval_progress)
             services.job_heartbeat(job_model=TrainingJob, job_id=self.job.pk, **progress)
