@@ -1,8 +1,9 @@
 """Browser code installed from the npm registry at set-up time and bundled with esbuild.
 
 The CodeMirror editor (assets/codemirror.js + the packages pinned in package.json and
-package-lock.json) becomes static/vendor/codemirror.bundle.js, which is git-ignored: a fresh
-clone builds it on the first ``manage.py up`` (or ``manage.py build_assets``).
+package-lock.json) becomes static/vendor/codemirror.bundle.js, and the charts of the model
+pages (assets/charts.js: Chart.js) static/vendor/charts.bundle.js; both are git-ignored: a
+fresh clone builds them on the first ``manage.py up`` (or ``manage.py build_assets``).
 """
 
 from __future__ import annotations
@@ -13,16 +14,16 @@ from pathlib import Path
 
 from django.conf import settings
 
-BUNDLE = "vendor/codemirror.bundle.js"
-"""The bundle's path under static/."""
+BUNDLES = ("vendor/codemirror.bundle.js", "vendor/charts.bundle.js")
+"""The bundles' paths under static/."""
 
 
 class AssetBuildError(RuntimeError):
     """npm or esbuild failed, or node is missing; the message says which."""
 
 
-def bundle_path() -> Path:
-    return Path(settings.BASE_DIR) / "static" / BUNDLE
+def bundle_paths() -> list[Path]:
+    return [Path(settings.BASE_DIR) / "static" / bundle for bundle in BUNDLES]
 
 
 def sources() -> list[Path]:
@@ -35,11 +36,11 @@ def sources() -> list[Path]:
 
 
 def bundle_is_fresh() -> bool:
-    """The bundle exists and is newer than every source it is built from."""
-    bundle = bundle_path()
-    if not bundle.exists():
+    """Every bundle exists and is newer than every source it is built from."""
+    bundles = bundle_paths()
+    if not all(bundle.exists() for bundle in bundles):
         return False
-    built = bundle.stat().st_mtime
+    built = min(bundle.stat().st_mtime for bundle in bundles)
     return all(not src.exists() or src.stat().st_mtime <= built for src in sources())
 
 
@@ -75,6 +76,7 @@ def build_assets(*, force: bool = False) -> bool:
     ):
         _run([npm, "ci", "--no-audit", "--no-fund"], base)
     _run([npm, "run", "--silent", "build"], base)
-    if not bundle_path().exists():
-        raise AssetBuildError(f"the build ran but {bundle_path()} is missing")
+    missing = [str(bundle) for bundle in bundle_paths() if not bundle.exists()]
+    if missing:
+        raise AssetBuildError(f"the build ran but {', '.join(missing)} is missing")
     return True

@@ -5,6 +5,7 @@
 /models/                   your models          /models/new/, /models/import/
 /models/<id>/              a model's page       .../clone/, .../delete/, .../train/, .../reward/
 /models/<id>/download/<car|virtual|logs>/       /evaluations/<id>/video.mp4
+/models/<id>/analysis/     charts of the logs   .../data/<chart>.<json|csv>, .../replay/
 /jobs/training/<id>/stop/  /evaluations/<id>/stop/                           stop a job
 /api/reward/validate       the reward function's Validate button (JSON)
 /api/openapi.json          the JSON API's OpenAPI description (console/openapi.json)
@@ -19,7 +20,7 @@ from django.templatetags.static import static
 from django.urls import include, path, register_converter
 from django.views.generic.base import RedirectView
 
-from console.views import accounts, api, downloads, model_page, models, pages
+from console.views import accounts, analysis, api, downloads, model_page, models, pages
 
 
 class TrackIdConverter:
@@ -64,6 +65,23 @@ urlpatterns = [
         "models/<int:model_id>/download/<str:kind>/",
         downloads.model_download,
         name="model-download",
+    ),
+    path("models/<int:model_id>/analysis/", analysis.analysis_page, name="model-analysis"),
+    path(
+        "models/<int:model_id>/analysis/data/<str:chart>.<str:fmt>",
+        analysis.analysis_data,
+        name="analysis-data",
+    ),
+    path(
+        "models/<int:model_id>/analysis/episode/<int:iteration>/<int:episode>/",
+        analysis.analysis_episode,
+        name="analysis-episode",
+    ),
+    path("models/<int:model_id>/analysis/replay/", analysis.replay_start, name="replay-start"),
+    path(
+        "models/<int:model_id>/analysis/replay/<str:task_id>/",
+        analysis.replay_result,
+        name="replay-result",
     ),
     path("jobs/training/<int:job_id>/stop/", model_page.training_stop, name="training-stop"),
     path(

@@ -19,6 +19,7 @@ log = logging.getLogger(__name__)
 TRAIN_MODEL = "training.tasks.train_model"
 EVALUATE_MODEL = "training.tasks.evaluate_model"
 SIMULATE_ROLLOUT = "training.tasks.simulate_rollout"
+REPLAY_REWARD = "training.tasks.replay_reward"
 VALIDATE_REWARD = "training.tasks.validate_reward"
 JOB_QUEUES = ("training", "evaluation")
 """Queues whose tasks carry jobs (see console/celery.py's routes)."""

@@ -68,6 +68,10 @@ class RacingModel(models.Model):
     error = models.TextField(blank=True)
     created_at = models.DateTimeField(default=timezone.now)
     updated_at = models.DateTimeField(auto_now=True)
+    store_prefix = models.CharField(max_length=96, blank=True, editable=False)
+    """The model's folder in the object store, ``u<owner id>-<name>`` (DeepRacer tools read a
+    model under its own name), fixed when the row is created; blank for models stored before
+    it existed, whose folder is their id."""
 
     class Meta:
         ordering = ["-created_at"]
@@ -77,6 +81,16 @@ class RacingModel(models.Model):
 
     def __str__(self) -> str:
         return self.name
+
+    def save(self, *args, **kwargs) -> None:
+        if self._state.adding and not self.store_prefix:
+            self.store_prefix = f"u{self.owner_id}-{self.name}"
+        super().save(*args, **kwargs)
+
+    @property
+    def store_folder(self) -> str:
+        """The folder name in the store: ``store_prefix``, or the id for older models."""
+        return self.store_prefix or str(self.pk)
 
     @property
     def is_busy(self) -> bool:
@@ -203,11 +217,15 @@ class IterationMetric(models.Model):
 
 
 class EpisodeMetric(models.Model):
-    """One episode: the fields of DeepRacer's TrainingMetrics.json."""
+    """One episode: the fields of DeepRacer's TrainingMetrics.json. ``episode`` counts from 1
+    across the run, ``trial`` from 1 in each iteration (of the log: see
+    :class:`training.worker.training.JobHooks`); an ``evaluation`` row carries the episode and
+    trial of the training row before it. Times are simulated milliseconds."""
 
     job = models.ForeignKey(TrainingJob, on_delete=models.CASCADE, related_name="episode_metrics")
     iteration = models.PositiveIntegerField()
     episode = models.PositiveIntegerField()
+    trial = models.PositiveIntegerField(default=0)
     phase = models.CharField(max_length=12, default="training")
     reward_score = models.IntegerField()
     completion_percentage = models.PositiveSmallIntegerField()
@@ -217,7 +235,7 @@ class EpisodeMetric(models.Model):
     metric_time = models.PositiveBigIntegerField()
 
     class Meta:
-        ordering = ["job", "episode"]
+        ordering = ["job", "pk"]
         indexes = [models.Index(fields=["job", "iteration"])]
 
     def as_deepracer(self) -> dict:
@@ -227,7 +245,7 @@ class EpisodeMetric(models.Model):
             "start_time": self.start_time,
             "elapsed_time_in_milliseconds": self.elapsed_time_in_milliseconds,
             "episode": self.episode,
-            "trial": self.episode + 1,
+            "trial": self.trial,
             "phase": self.phase,
             "completion_percentage": self.completion_percentage,
             "episode_status": self.episode_status,
@@ -253,6 +271,9 @@ class EvaluationJob(Job):
     results = models.JSONField(default=dict, blank=True)
     laps_done = models.PositiveSmallIntegerField(default=0)
     has_video = models.BooleanField(default=False)
+    log_stamp = models.CharField(max_length=14, blank=True)
+    """``YYYYMMDDhhmmss`` (UTC) of DeepRacer-for-Cloud's ``evaluation-<stamp>/`` folder and
+    ``EvaluationMetrics-<stamp>.json``; blank for evaluations stored under their id."""
 
     def __str__(self) -> str:
         return f"evaluation #{self.pk} of {self.model}"

@@ -46,4 +46,9 @@ def get_store() -> ObjectStore:
 
 
 def keys_for(model_id: int) -> ModelKeys:
-    return ModelKeys(str(model_id))
+    """The object keys of model ``model_id``, under its folder (``RacingModel.store_folder``:
+    ``u<owner>-<name>`` for new models, the id for models stored before that)."""
+    from training.models import RacingModel
+
+    prefix = RacingModel.objects.filter(pk=model_id).values_list("store_prefix", flat=True).first()
+    return ModelKeys(prefix or str(model_id))

@@ -20,6 +20,7 @@ from django.db import close_old_connections
 
 from training import dispatch, services, store
 from training.rollout.remote import serve_rollout
+from training.services.analysis import replay_run
 from training.services.rewards import reward_validation_run
 from training.worker.evaluation import run_evaluation_job
 from training.worker.training import run_training_job
@@ -42,6 +43,12 @@ def simulate_rollout(**kwargs) -> str:
     """A rollout worker for a trainer on another machine (queue ``simulation``). Acknowledged
     early: a lost rollout worker is the trainer's error to report, never a task to replay."""
     return serve_rollout(**kwargs)
+
+
+@shared_task(name=dispatch.REPLAY_REWARD)
+def replay_reward(model_id: int, iteration: int, episode: int, source: str) -> dict:
+    """A reward replay on a recorded episode (the user's code runs in the sandbox here)."""
+    return replay_run(model_id, iteration, episode, source)
 
 
 @shared_task(name=dispatch.VALIDATE_REWARD, acks_late=False, time_limit=600)

@@ -10,12 +10,13 @@ from __future__ import annotations
 import os
 import threading
 import uuid
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 
 from tests.support import S3_ACCESS_KEY, S3_SECRET_KEY
-from training.interchange.layout import ModelKeys, model_prefix
+from training.interchange.layout import ModelKeys, evaluation_stamp, model_prefix
 from training.storage import (
     LocalStore,
     MinioStore,
@@ -321,9 +322,16 @@ def test_model_keys_layout() -> None:
     assert keys.checkpoints_index == "abc-1/model/deepracer_checkpoints.json"
     assert keys.simtrace(3) == "abc-1/training-simtrace/3-iteration.csv"
     assert keys.training_metrics == "abc-1/metrics/TrainingMetrics.json"
-    assert keys.evaluation_metrics(9) == "abc-1/metrics/EvaluationMetrics-9.json"
+    stamp = evaluation_stamp(datetime(2022, 7, 9, 20, 5, 9, tzinfo=UTC))
+    assert stamp == "20220709200509"
+    assert keys.evaluation_metrics(stamp) == "abc-1/metrics/EvaluationMetrics-20220709200509.json"
     assert (
-        keys.evaluation_simtrace(9, 2) == "abc-1/evaluation/9/evaluation-simtrace/2-iteration.csv"
+        keys.evaluation_simtrace(stamp)
+        == "abc-1/evaluation-20220709200509/evaluation-simtrace/0-iteration.csv"
+    )
+    assert (
+        keys.legacy_evaluation_simtrace(9)
+        == "abc-1/evaluation/9/evaluation-simtrace/0-iteration.csv"
     )
     assert keys.video(9) == "abc-1/videos/9.mp4"
     assert keys.car_export == "abc-1/export/car.tar.gz"
@@ -331,12 +339,18 @@ def test_model_keys_layout() -> None:
         assert validate_key(key) == key
 
 
-@pytest.mark.parametrize("bad", ["", "../x", "a/b", "a b", True, "x" * 65])
-def test_model_ids_are_one_safe_segment(bad: object) -> None:
+@pytest.mark.parametrize("bad", ["", "../x", "a/b", "a b", True, "x" * 97])
+def test_model_folders_are_one_safe_segment(bad: object) -> None:
     with pytest.raises(StoreError):
         model_prefix(bad)  # type: ignore[arg-type]
     with pytest.raises(StoreError):
-        ModelKeys(1).checkpoint(bad)  # type: ignore[arg-type]
+        ModelKeys(1).checkpoint(bad if bad != "x" * 97 else "x" * 65)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("bad", ["", "2022070920050", "2022-07-09T20:05", 20220709200509])
+def test_evaluation_stamps_are_14_digits(bad: object) -> None:
+    with pytest.raises(StoreError):
+        ModelKeys(1).evaluation_simtrace(bad)  # type: ignore[arg-type]
 
 
 def test_bad_iterations() -> None:

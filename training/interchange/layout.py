@@ -4,18 +4,33 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from datetime import UTC, datetime
 
 from training.storage import StoreError
 
 _MODEL_ID_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+_FOLDER_RE = re.compile(r"^[A-Za-z0-9_-]{1,96}$")
+_STAMP_RE = re.compile(r"^[0-9]{14}$")
 
 
-def model_prefix(model_id: str | int) -> str:
-    """The folder of one model: ``"<model-id>/"``. Ids are 1-64 of ``A-Z a-z 0-9 _ -``."""
-    text = str(model_id)
-    if isinstance(model_id, bool) or not _MODEL_ID_RE.match(text):
-        raise StoreError(f"model id {model_id!r} must be 1-64 letters, digits, '_' or '-'")
+def model_prefix(folder: str | int) -> str:
+    """The folder of one model: ``"<folder>/"``, 1-96 of ``A-Z a-z 0-9 _ -`` (its id for older
+    models, ``u<owner>-<name>`` for new ones)."""
+    text = str(folder)
+    if isinstance(folder, bool) or not _FOLDER_RE.match(text):
+        raise StoreError(f"model folder {folder!r} must be 1-96 letters, digits, '_' or '-'")
     return f"{text}/"
+
+
+def evaluation_stamp(when: datetime) -> str:
+    """DeepRacer-for-Cloud's name of an evaluation: ``YYYYMMDDhhmmss`` in UTC."""
+    return when.astimezone(UTC).strftime("%Y%m%d%H%M%S")
+
+
+def _stamp(value: str) -> str:
+    if not isinstance(value, str) or not _STAMP_RE.match(value):
+        raise StoreError(f"evaluation stamp {value!r} must be 14 digits (YYYYMMDDhhmmss)")
+    return value
 
 
 def _name(value: str | int, what: str) -> str:
@@ -32,9 +47,13 @@ class ModelKeys:
     <id>/model/model_metadata.json   <id>/model/<checkpoint>.zip   <id>/model/best, last
     <id>/ip/hyperparameters.json     <id>/reward_function.py
     <id>/training-simtrace/<n>-iteration.csv   <id>/metrics/TrainingMetrics.json
-    <id>/metrics/EvaluationMetrics-<eval>.json
-    <id>/evaluation/<eval>/evaluation-simtrace/<n>-iteration.csv
+    <id>/metrics/EvaluationMetrics-<stamp>.json
+    <id>/evaluation-<stamp>/evaluation-simtrace/0-iteration.csv
     <id>/videos/<eval>.mp4           <id>/export/car.tar.gz
+
+    ``<stamp>`` is the evaluation's start, ``YYYYMMDDhhmmss`` UTC (:func:`evaluation_stamp`).
+    Evaluations stored before that live under ``<id>/evaluation/<eval id>/`` and
+    ``EvaluationMetrics-<eval id>.json`` (:meth:`legacy_evaluation_simtrace`).
     """
 
     model_id: str | int
@@ -79,12 +98,16 @@ class ModelKeys:
     def training_metrics(self) -> str:
         return f"{self.prefix}metrics/TrainingMetrics.json"
 
-    def evaluation_metrics(self, eval_id: str | int) -> str:
-        return f"{self.prefix}metrics/EvaluationMetrics-{_name(eval_id, 'evaluation id')}.json"
+    def evaluation_metrics(self, stamp: str) -> str:
+        return f"{self.prefix}metrics/EvaluationMetrics-{_stamp(stamp)}.json"
 
-    def evaluation_simtrace(self, eval_id: str | int, iteration: int) -> str:
+    def evaluation_simtrace(self, stamp: str) -> str:
+        return f"{self.prefix}evaluation-{_stamp(stamp)}/evaluation-simtrace/0-iteration.csv"
+
+    def legacy_evaluation_simtrace(self, eval_id: str | int) -> str:
+        """Where evaluations were stored before DeepRacer-for-Cloud's names (read only)."""
         folder = f"{self.prefix}evaluation/{_name(eval_id, 'evaluation id')}"
-        return f"{folder}/evaluation-simtrace/{_iteration(iteration)}-iteration.csv"
+        return f"{folder}/evaluation-simtrace/0-iteration.csv"
 
     def video(self, eval_id: str | int) -> str:
         return f"{self.prefix}videos/{_name(eval_id, 'evaluation id')}.mp4"

@@ -1,5 +1,6 @@
 """Evaluating a model as DeepRacer does: 3 to 5 laps back to back from the start line, with
-resets and penalties, per-lap results, EvaluationMetrics entries, a sim-trace and an MP4.
+resets and penalties, per-lap results, EvaluationMetrics entries, a sim-trace (one episode per
+lap, as DeepRacer writes it) and an MP4.
 
 No user code runs here: an evaluation drives the policy; the reward column of the sim-trace is
 0 (DeepRacer's evaluations do not train, so nothing reads it).
@@ -18,6 +19,7 @@ import numpy as np
 from racing.env import RacingEnv
 from racing.rules import STATUS_LABELS, LapRecord, Status
 from racing.sensors import ground_for
+from racing.simtrace import TraceRow
 from racing.video import ChaseView
 from training.rollout.envs import EnvSpec, FrameGrabber
 
@@ -120,14 +122,43 @@ def _lap_result(lap: LapRecord, settings: EvaluationSettings) -> LapResult:
     )
 
 
-def _metric(lap: LapRecord, start_wall: float) -> dict:
-    now = time.time()
+class LapTrace:
+    """Sim-trace rows of an evaluation as DeepRacer writes them: one episode per lap
+    (``episode`` = lap - 1), ``steps`` from 1 in each lap, the lap's first row ``prepare`` and
+    stamped at the lap's start, ``tstamp`` the evaluation's simulated clock (seconds), the
+    lap's last row ``done`` with the lap's progress (100 for a finished lap, as DeepRacer's)."""
+
+    def __init__(self) -> None:
+        self.rows: list[list] = []
+        self.lap = 0
+        self.lap_start_s = 0.0
+        self.step = 0
+
+    def add(self, row: TraceRow, *, finished: LapRecord | None, done: bool) -> None:
+        """One step; ``finished`` is the lap this step ended, if it ended one."""
+        self.step += 1
+        lap_finished = finished is not None
+        row = row._replace(episode=self.lap, steps=self.step, done=lap_finished or done)
+        if finished is not None:
+            row = row._replace(progress=float(finished.progress))
+        if self.step == 1:
+            row = row._replace(tstamp=self.lap_start_s)
+            if not row.done:
+                row = row._replace(episode_status=Status.PREPARE.value)
+        self.rows.append(list(row.stamped()))
+        if lap_finished:
+            self.lap, self.lap_start_s, self.step = self.lap + 1, row.tstamp, 0
+
+
+def _metric(lap: LapRecord, start_s: float) -> dict:
+    """One ``EvaluationMetrics`` entry: a lap (``trial``), times in simulated milliseconds from
+    the evaluation's start (``start_s``: seconds when the lap began), as SimApp writes them."""
     return {
         "trial": lap.lap,
         "completion_percentage": int(lap.progress),
         "elapsed_time_in_milliseconds": int(round(lap.time_s * 1000)),
-        "metric_time": int(now * 1000),
-        "start_time": int(start_wall * 1000),
+        "metric_time": int(round((start_s + lap.time_s) * 1000)),
+        "start_time": int(round(start_s * 1000)),
         "episode_status": STATUS_LABELS[lap.status],
         "crash_count": lap.crashes,
         "immobilized_count": lap.immobilizations,
@@ -209,20 +240,20 @@ def evaluate(
     at most) while ``frames_wanted()`` says someone watches.
     """
     started = time.monotonic()
-    start_wall = time.time()
     env = evaluation_env(spec, settings)
     video = VideoWriter() if settings.record_video else None
     chase = ChaseView(ground_for(env.track, resolution=0.01, rgb=True)) if video else None
     obs, _ = env.reset(seed=0)
     grabber = FrameGrabber(env) if on_frame is not None else None
-    rows: list[list] = []
+    trace = LapTrace()
     stopped = False
     info: dict = {}
     try:
         while True:
             action = policy(obs)
             obs, _, terminated, truncated, info = env.step(action)
-            rows.append(list(info["trace"].stamped()))
+            finished = info["laps"][-1] if info.get("lap_finished") and info["laps"] else None
+            trace.add(info["trace"], finished=finished, done=terminated or truncated)
             if video is not None and chase is not None:
                 video.add(chase.render(env.pose, env.objects), obs[..., 0])
             if (
@@ -251,10 +282,11 @@ def evaluate(
         current.time_s = env.tracker.sim_time - env.tracker.lap_start_time
         current.progress = env.tracker.progress
         laps.append(current)
+    starts = np.cumsum([0.0] + [lap.time_s for lap in laps])
     return EvaluationReport(
         laps=[_lap_result(lap, settings) for lap in laps],
-        metrics=[_metric(lap, start_wall) for lap in laps],
-        rows=rows,
+        metrics=[_metric(lap, float(start)) for lap, start in zip(laps, starts, strict=False)],
+        rows=trace.rows,
         video_mp4=video.finish() if video else None,
         stopped=stopped,
         steps=env.tracker.steps,

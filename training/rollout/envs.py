@@ -8,6 +8,7 @@ process boundary is plain JSON plus numpy arrays.
 
 from __future__ import annotations
 
+import secrets
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -18,6 +19,7 @@ import numpy as np
 
 from racing.env import RacingEnv
 from racing.rules import STATUS_LABELS, RaceRules, Status
+from racing.simtrace import TraceRow
 from racing.tracks import TrackCatalog
 
 FRAME_INTERVAL_S = 1 / 15
@@ -70,18 +72,33 @@ class EnvSpec:
 
 
 def episode_entry(
-    env: RacingEnv, *, total_reward: float, phase: str, episode: int, status: str, start_wall: float
+    env: RacingEnv,
+    *,
+    total_reward: float,
+    phase: str,
+    episode: int,
+    status: str,
+    start_s: float,
+    car: int = 0,
 ) -> dict:
-    """One ``TrainingMetrics.json`` entry (DeepRacer's fields) for a finished episode."""
-    now = time.time()
+    """One ``TrainingMetrics.json`` entry (DeepRacer's fields) for a finished episode.
+
+    Times are the car's simulation clock in milliseconds, as SimApp writes them (ROS time):
+    ``start_time`` when the episode began (``start_s``, seconds), ``metric_time`` when it
+    ended, ``elapsed_time_in_milliseconds`` the simulated time in between. ``car`` and
+    ``env_episode`` say which car drove it and its episode number on that car, so the log
+    writer can find its sim-trace rows."""
+    elapsed_s = float(env.tracker.sim_time)
     return {
         "reward_score": int(round(total_reward)),
-        "metric_time": int(now * 1000),
-        "start_time": int(start_wall * 1000),
-        "elapsed_time_in_milliseconds": int((now - start_wall) * 1000),
+        "metric_time": int(round((start_s + elapsed_s) * 1000)),
+        "start_time": int(round(start_s * 1000)),
+        "elapsed_time_in_milliseconds": int(round(elapsed_s * 1000)),
         "episode": episode,
         "trial": episode + 1,
         "phase": phase,
+        "car": car,
+        "env_episode": env.episode,
         "completion_percentage": int(env.tracker.progress)
         if status != Status.LAP_COMPLETE.value
         else 100,
@@ -94,18 +111,43 @@ def episode_entry(
 
 
 class EpisodeBook:
-    """Per-env running totals, turned into a metrics entry when an episode ends."""
+    """Per-env running totals, turned into a metrics entry when an episode ends, and the
+    car's sim-trace rows as DeepRacer writes them.
+
+    Each car has a clock that runs on across its episodes (``clock_s``, simulated seconds,
+    as SimApp's ROS time does): a row's ``tstamp`` is that clock, not the episode's own time,
+    and an episode's first row is its ``prepare`` row, stamped at the episode's start, so
+    "last tstamp - prepare tstamp" is the episode's simulated time. ``car`` is a random
+    48-bit id (under the 1e15 a sandbox may send): unique among the cars of a run, whichever
+    process or machine drives them.
+    """
 
     def __init__(self, env: RacingEnv, phase: str = "training") -> None:
         self.env = env
         self.phase = phase
+        self.car = secrets.randbits(48)
         self.episodes = 0
         self.reward = 0.0
-        self.start_wall = time.time()
+        self.clock_s = 0.0
+        self.first_step = True
 
     def reset(self) -> None:
         self.reward = 0.0
-        self.start_wall = time.time()
+        self.first_step = True
+
+    def trace(self, row: TraceRow, done: bool) -> list:
+        """The step's sim-trace row on the car's clock (``wall_clock`` now), then the car's
+        id: JSON scalars only, as a sandboxed worker may send them."""
+        if self.first_step:
+            row = row._replace(tstamp=self.clock_s)
+            if not done:
+                row = row._replace(episode_status=Status.PREPARE.value)
+        else:
+            row = row._replace(tstamp=self.clock_s + row.tstamp)
+        self.first_step = False
+        if isinstance(row.action, tuple):  # a continuous action, as SimApp writes it: text
+            row = row._replace(action=f"[{row.action[0]:.2f} {row.action[1]:.2f}]")
+        return [*row.stamped(), self.car]
 
     def step(self, reward: float, info: dict, done: bool) -> dict | None:
         self.reward += reward
@@ -117,20 +159,24 @@ class EpisodeBook:
             phase=self.phase,
             episode=self.episodes,
             status=info["status"],
-            start_wall=self.start_wall,
+            start_s=self.clock_s,
+            car=self.car,
         )
+        self.clock_s += float(self.env.tracker.sim_time)
         self.episodes += 1
         return entry
 
 
-def compact_info(info: dict, *, truncated: bool = False) -> dict:
-    """The part of an env step's info that leaves the worker: small and JSON-able."""
-    trace = info.get("trace")
+def compact_info(info: dict, *, truncated: bool = False, trace: list | None = None) -> dict:
+    """The part of an env step's info that leaves the worker: small and JSON-able. ``trace``
+    replaces the env's sim-trace row (e.g. :meth:`EpisodeBook.trace`: the row and the car)."""
+    if trace is None and info.get("trace") is not None:
+        trace = list(info["trace"])
     out = {
         "status": info["status"],
         "progress": info["progress"],
         "lap": info.get("lap", 1),
-        "trace": list(trace) if trace is not None else None,
+        "trace": trace,
     }
     if truncated:
         out["TimeLimit.truncated"] = True
@@ -213,7 +259,8 @@ class EnvRunner:
                 action = int(action)
             obs, reward, terminated, truncated, info = env.step(action)
             done = terminated or truncated
-            compact = compact_info(info, truncated=truncated and not terminated)
+            trace = book.trace(info["trace"], done) if info.get("trace") is not None else None
+            compact = compact_info(info, truncated=truncated and not terminated, trace=trace)
             entry = book.step(reward, info, done)
             if i == 0 and self.want_frames:
                 frame = self.frames.grab(obs)

@@ -79,8 +79,12 @@ def _in_virtual_model(name: str) -> bool:
     )
 
 
+_LOG_FOLDERS = ("training-simtrace/", "evaluation-", "evaluation/")
+"""Sim-trace folders: DeepRacer-for-Cloud's, and ``evaluation/<id>/`` of older evaluations."""
+
+
 def _in_logs(name: str) -> bool:
-    return name.startswith(("training-simtrace/", "metrics/", "evaluation/")) or name in (
+    return name.startswith((*_LOG_FOLDERS, "metrics/")) or name in (
         "reward_function.py",
         "model/model_metadata.json",
         "ip/hyperparameters.json",
@@ -94,9 +98,10 @@ def virtual_model_archive(model: RacingModel) -> bytes:
 
 
 def logs_archive(model: RacingModel) -> bytes:
-    """Sim-traces, metrics and evaluation logs in DeepRacer-for-Cloud's folder layout."""
+    """Sim-traces, metrics and evaluation logs in DeepRacer-for-Cloud's folder layout (the
+    model's folder as ``deepracer-utils`` reads it: extract and point ``DeepRacerLog`` at it)."""
     files = _collect(model, _in_logs, "logs")
-    if not any(n.startswith(("training-simtrace/", "evaluation/")) for n in files):
+    if not any(n.startswith(_LOG_FOLDERS) for n in files):
         raise ServiceError("there are no logs yet: train or evaluate the model first")
     return build_logs_archive(files)
 

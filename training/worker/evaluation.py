@@ -1,11 +1,18 @@
 """Running an evaluation job on a Celery worker (or inline, for the command line): 3-5 laps of
-the model's best checkpoint, DeepRacer's metrics and sim-trace, an MP4, live frames."""
+the model's best checkpoint, DeepRacer's metrics and sim-trace, an MP4, live frames.
+
+The logs go where DeepRacer-for-Cloud puts them: ``evaluation-<stamp>/evaluation-simtrace/
+0-iteration.csv`` and ``metrics/EvaluationMetrics-<stamp>.json``, ``<stamp>`` the job's start
+(``YYYYMMDDhhmmss`` UTC), kept in ``EvaluationJob.log_stamp``."""
 
 from __future__ import annotations
 
 import json
 
+from django.utils import timezone
+
 from training import live, services
+from training.interchange.layout import evaluation_stamp
 from training.models import EvaluationJob
 from training.rl.checkpoints import CheckpointError, load_checkpoint
 from training.rl.evaluation import EvaluationSettings, evaluate, sb3_policy
@@ -51,10 +58,12 @@ def run_evaluation_job(evaluation_id: int, worker: str = "") -> str:
                 on_frame=frames.publish,
                 frames_wanted=frames.watched,
             )
-        store.put_bytes(keys.evaluation_metrics(job.pk),
+        stamp = evaluation_stamp(job.started_at or timezone.now())
+        store.put_bytes(keys.evaluation_metrics(stamp),
                         json.dumps(report.metrics_json()).encode(), "application/json")  # fmt: skip
-        store.put_bytes(keys.evaluation_simtrace(job.pk, 0), csv_text(report.rows).encode(),
+        store.put_bytes(keys.evaluation_simtrace(stamp), csv_text(report.rows).encode(),
                         "text/csv")  # fmt: skip
+        EvaluationJob.objects.filter(pk=job.pk).update(log_stamp=stamp)
         if report.video_mp4:
             store.put_bytes(keys.video(job.pk), report.video_mp4, "video/mp4")
     except Exception as exc:  # noqa: BLE001 - every failure ends the job with a message

@@ -10,11 +10,14 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 
 from django.db import transaction
 
+from racing.rules import STATUS_LABELS, Status
 from training import live, services
 from training.interchange.export import build_car_archive
+from training.interchange.logbook import LoggedIteration, TrainingLog
 from training.models import EpisodeMetric, IterationMetric, RacingModel, TrainingJob
 from training.rl.checkpoints import CheckpointError
 from training.rl.hyperparams import parse_hyperparameters
@@ -26,19 +29,26 @@ from training.store import get_store, keys_for
 from training.worker.common import (
     Heartbeat,
     StopFlag,
-    csv_text,
     env_spec,
     fail_with,
     rollout_backend,
 )
 
 log = logging.getLogger(__name__)
+EPISODE_COUNT_EVERY_S = 5.0
+"""How often a running job records how many episodes have finished, seconds."""
 CLEAR_ERRORS = (RolloutError, SandboxError, CheckpointError, StoreError)
 """Errors whose message already tells the user what went wrong."""
 
 
 class JobHooks(TrainingHooks):
-    """Database rows, stored objects and live messages for one training job."""
+    """Database rows, stored objects and live messages for one training job.
+
+    Episodes are logged as DeepRacer logs them (:class:`~training.interchange.logbook.
+    TrainingLog`): iterations of ``num_episodes_between_training`` episodes in the order they
+    finished, so an :class:`EpisodeMetric`'s ``iteration`` is the log's iteration (1-based;
+    the sim-trace file ``<iteration - 1>-iteration.csv``), not the policy update it followed.
+    """
 
     def __init__(self, job: TrainingJob) -> None:
         self.job = job
@@ -48,10 +58,12 @@ class JobHooks(TrainingHooks):
         self.group = live.job_group("training", job.pk)
         self.frames = live.FramePublisher(self.group)
         self.should_stop = StopFlag(job)
-        self._episodes: list[dict] = []
+        hp = parse_hyperparameters(self.model.hyperparameters, self.model.algorithm)
+        self.log = TrainingLog(hp.num_episodes_between_training)
         # A resumed job numbers on from the iterations and episodes it already recorded.
+        self._finished = job.episodes  # training episodes finished so far
+        self._counted_at = 0.0
         self._iteration_offset = job.iterations
-        self._episode_count = EpisodeMetric.objects.filter(job=job).count()
         last = IterationMetric.objects.filter(job=job).order_by("-iteration").first()
         self._elapsed_offset = last.elapsed_s if last else 0.0
 
@@ -63,7 +75,13 @@ class JobHooks(TrainingHooks):
         self.frames.publish(frame)
 
     def on_episode(self, entry: dict) -> None:
-        self._episodes.append(entry)
+        self.log.add_entry(entry)
+        self._finished += 1
+        now = time.monotonic()
+        if now - self._counted_at >= EPISODE_COUNT_EVERY_S:  # the page and the CLI show it
+            self._counted_at = now
+            services.job_heartbeat(job_model=TrainingJob, job_id=self.job.pk,
+                                   episodes=self._finished)  # fmt: skip
 
     # ---- once per iteration
     def on_iteration(self, result: IterationResult, checkpoint: bytes, rows: list[list]) -> None:
@@ -79,8 +97,7 @@ class JobHooks(TrainingHooks):
             ).encode(),  # fmt: skip
             "application/json",
         )
-        store.put_bytes(keys.simtrace(n - 1), csv_text(rows).encode(), "text/csv")
-        episodes, self._episodes = self._episodes, []
+        self.log.add_rows(rows)
         ev = result.evaluation
         with transaction.atomic():
             point = IterationMetric.objects.create(
@@ -93,14 +110,9 @@ class JobHooks(TrainingHooks):
                 rollout_s=result.rollout_s,
                 update_s=result.update_s, eval_s=result.eval_s,
             ).as_point()  # fmt: skip
-            new_rows = []
-            for entry in episodes:
-                if isinstance(entry, dict):
-                    new_rows.append(_episode_row(self.job, n, entry, self._episode_count))
-                    self._episode_count += 1
-            EpisodeMetric.objects.bulk_create(new_rows)
+            self._store_log(self.log.take(), evaluation=ev)
             progress = {"iterations": n, "total_steps": result.total_steps,
-                        "episodes": self._episode_count}  # fmt: skip
+                        "episodes": self._finished}  # fmt: skip
             if result.best:
                 progress.update(best_iteration=n, best_eval_progress=result.eval_progress)
             services.job_heartbeat(job_model=TrainingJob, job_id=self.job.pk, **progress)
@@ -110,11 +122,32 @@ class JobHooks(TrainingHooks):
         self._write_training_metrics()
         live.send(self.group, {"type": "job.metrics", "point": point})
 
+    def finish(self) -> None:
+        """Log the episodes still queued when training ends (a last, shorter iteration)."""
+        with transaction.atomic():
+            self._store_log(self.log.take(final=True), evaluation=None)
+            services.job_heartbeat(job_model=TrainingJob, job_id=self.job.pk,
+                                   episodes=self.log.logged)  # fmt: skip
+        self._write_training_metrics()
+
+    def _store_log(self, iterations: list[LoggedIteration], evaluation) -> None:
+        """Sim-trace files and episode rows of the logged iterations; then, after the last
+        training entry, the evaluation episodes of the policy update (DeepRacer's order)."""
+        rows: list[EpisodeMetric] = []
+        for it in iterations:
+            self.store.put_bytes(self.keys.simtrace(it.number), it.simtrace_csv().encode(),
+                                 "text/csv")  # fmt: skip
+            rows += [_episode_row(self.job, it.number + 1, e.entry) for e in it.episodes]
+        last = rows[-1] if rows else self._last_training_row()
+        if evaluation is not None and last is not None:
+            rows += _evaluation_rows(self.job, last, evaluation)
+        EpisodeMetric.objects.bulk_create(rows)
+
+    def _last_training_row(self) -> EpisodeMetric | None:
+        return EpisodeMetric.objects.filter(job=self.job, phase="training").order_by("-pk").first()
+
     def _write_training_metrics(self) -> None:
-        entries = [
-            m.as_deepracer()
-            for m in EpisodeMetric.objects.filter(job=self.job).order_by("episode", "pk")
-        ]
+        entries = [m.as_deepracer() for m in EpisodeMetric.objects.filter(job=self.job)]
         body = {"metrics": entries, "version": 2, "best_model_metric": "progress"}
         self.store.put_bytes(
             self.keys.training_metrics, json.dumps(body).encode(), "application/json"
@@ -124,7 +157,7 @@ class JobHooks(TrainingHooks):
         self.frames.close()
 
 
-def _episode_row(job: TrainingJob, iteration: int, e: dict, number: int) -> EpisodeMetric:
+def _episode_row(job: TrainingJob, iteration: int, e: dict) -> EpisodeMetric:
     """A row from a worker's metrics entry (untrusted: every value checked)."""
 
     def num(key: str, default: int = 0) -> int:
@@ -134,7 +167,8 @@ def _episode_row(job: TrainingJob, iteration: int, e: dict, number: int) -> Epis
     return EpisodeMetric(
         job=job,
         iteration=iteration,
-        episode=number,
+        episode=max(0, num("episode")),
+        trial=max(0, num("trial")),
         phase="training",
         reward_score=num("reward_score"),
         completion_percentage=min(100, max(0, num("completion_percentage"))),
@@ -143,6 +177,27 @@ def _episode_row(job: TrainingJob, iteration: int, e: dict, number: int) -> Epis
         start_time=max(0, num("start_time")),
         metric_time=max(0, num("metric_time")),
     )
+
+
+def _evaluation_rows(job: TrainingJob, last: EpisodeMetric, ev) -> list[EpisodeMetric]:
+    """The evaluation episodes after an update, as TrainingMetrics ``evaluation`` entries:
+    numbered like the last training entry; times are the lap's, when it finished one."""
+    rows = []
+    for progress, status, laps, reward in zip(
+        ev.progress, ev.statuses, ev.lap_times, ev.rewards, strict=True
+    ):
+        label = STATUS_LABELS.get(Status(status), "") if status in _STATUSES else ""
+        rows.append(EpisodeMetric(
+            job=job, iteration=last.iteration, episode=last.episode, trial=last.trial,
+            phase="evaluation", reward_score=int(round(reward)),
+            completion_percentage=min(100, max(0, int(progress))), episode_status=label,
+            elapsed_time_in_milliseconds=int(round(sum(laps) * 1000)),
+            start_time=0, metric_time=0,
+        ))  # fmt: skip
+    return rows
+
+
+_STATUSES = {s.value for s in Status}
 
 
 def _initial_checkpoint(
@@ -212,6 +267,7 @@ def run_training_job(job_id: int, worker: str = "") -> str:
         services.job_begin(job=job)
         with Heartbeat(TrainingJob, job.pk):
             summary = train(config, hooks)
+            hooks.finish()
     except Exception as exc:  # noqa: BLE001 - every failure ends the job with a message
         return fail_with(job, exc, what="training", clear=CLEAR_ERRORS)
     finally:

@@ -7,7 +7,7 @@ from typing import Any
 
 from django.core.management.base import BaseCommand, CommandError
 
-from console.assets import AssetBuildError, build_assets, bundle_path
+from console.assets import AssetBuildError, build_assets, bundle_paths
 
 
 class Command(BaseCommand):
@@ -22,4 +22,4 @@ class Command(BaseCommand):
         except AssetBuildError as exc:
             raise CommandError(str(exc)) from exc
         verb = "built" if built else "up to date:"
-        self.stdout.write(f"assets {verb} {bundle_path()}")
+        self.stdout.write(f"assets {verb} {', '.join(str(p) for p in bundle_paths())}")

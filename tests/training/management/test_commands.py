@@ -161,7 +161,7 @@ def test_a_failed_command_exits_with_code_1():
         cwd=ROOT, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert proc.returncode == 1
-    assert "say what to export: --car PATH, --virtual PATH or --logs PATH" in proc.stderr
+    assert "say what to export: --car PATH, --onnx PATH, --virtual PATH, --logs PATH" in proc.stderr
 
 
 # ------------------------------------------------------------------------------ queue mode

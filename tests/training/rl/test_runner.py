@@ -63,7 +63,9 @@ def test_iterations_with_a_sandboxed_reward(algorithm, actions):
     assert first.iteration == 1 and first.steps > 0 and first.episodes >= 1
     assert 0.0 <= first.eval_progress <= 100.0 and len(first.evaluation.progress) == 2
     assert hooks.results[0].best  # the first iteration is the best so far
-    assert all(len(row) == 19 for row in hooks.rows[0])
+    # the 19 sim-trace values, then the id of the car that drove the step
+    assert all(len(row) == 20 for row in hooks.rows[0])
+    assert len({row[-1] for row in hooks.rows[0]}) == 2
     assert {"reward_score", "completion_percentage", "episode_status"} <= set(hooks.episodes[0])
     metadata = build_metadata(action_space=actions, training_algorithm=algorithm,
                               sensor=["FRONT_FACING_CAMERA"],

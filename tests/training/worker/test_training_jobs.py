@@ -79,7 +79,7 @@ def test_train_stop_evaluate_clone_export_delete(celery_worker: ChildProcess, st
     assert len(points) >= 2 and points[0].iteration == 1
     assert all(0 <= p.eval_progress <= 100 for p in points)
     assert sum(p.is_best for p in points) >= 1
-    assert job.episodes > 0 and job.episode_metrics.count() == job.episodes
+    assert job.episodes > 0 and job.episode_metrics.filter(phase="training").count() == job.episodes
 
     store, keys = get_store(), keys_for(model.pk)
     for key in (keys.best, keys.last, keys.metadata, keys.hyperparameters, keys.reward_function,
@@ -89,7 +89,8 @@ def test_train_stop_evaluate_clone_export_delete(celery_worker: ChildProcess, st
     assert csv[0].split(",")[:3] == ["episode", "steps", "X"] and len(csv[0].split(",")) == 19
     assert len(csv) > 10
     metrics = json.loads(store.get_bytes(keys.training_metrics))
-    assert metrics["version"] == 2 and len(metrics["metrics"]) == job.episodes
+    training = [m for m in metrics["metrics"] if m["phase"] == "training"]
+    assert metrics["version"] == 2 and len(training) == job.episodes
 
     evaluation = services.evaluation_start(model=model, user=alice, laps=3)
     evaluation = wait_for(
@@ -100,7 +101,8 @@ def test_train_stop_evaluate_clone_export_delete(celery_worker: ChildProcess, st
     assert 1 <= len(laps) <= 3
     assert {"trial", "time_s", "progress", "status", "off_tracks", "resets"} <= set(laps[0])
     assert evaluation.has_video and downloads.evaluation_video(evaluation)[4:8] == b"ftyp"
-    assert store.exists(keys.evaluation_metrics(evaluation.pk))
+    assert store.exists(keys.evaluation_metrics(evaluation.log_stamp))
+    assert store.exists(keys.evaluation_simtrace(evaluation.log_stamp))
 
     clone = services.model_clone(model=model, owner=alice, name="oval-runner-2")
     assert clone.parent == model and clone.has_checkpoint
