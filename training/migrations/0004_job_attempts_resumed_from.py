@@ -6,7 +6,7 @@ from django.db import migrations, models
 class Migration(migrations.Migration):
 
     dependencies = [
-        ('training', '0002_drop_unused_model_statuses'),
+        ('training', '0003_logs_layout'),
     ]
 
     operations = [
