@@ -103,6 +103,15 @@ class ObjectStore(ABC):
         """Whether an object is stored at ``key``."""
 
     @abstractmethod
+    def stat_size(self, key: str) -> int:
+        """The size of the object at ``key``, bytes."""
+
+    @abstractmethod
+    def get_range(self, key: str, start: int, length: int) -> bytes:
+        """``length`` bytes of the object at ``key`` from byte ``start`` (fewer at its end):
+        a video is served by ranges without reading the whole object."""
+
+    @abstractmethod
     def list(self, prefix: str = "") -> list[str]:
         """Every key under the folder ``prefix`` (recursively), sorted; ``""`` lists all."""
 
@@ -174,6 +183,19 @@ class LocalStore(ObjectStore):
 
     def exists(self, key: str) -> bool:
         return self._path(key).is_file()
+
+    def stat_size(self, key: str) -> int:
+        path = self._path(key)
+        with self._errors("read", key):
+            if not path.is_file():
+                raise FileNotFoundError(key)
+            return path.stat().st_size
+
+    def get_range(self, key: str, start: int, length: int) -> bytes:
+        path = self._path(key)
+        with self._errors("read", key), path.open("rb") as handle:
+            handle.seek(max(0, start))
+            return handle.read(max(0, length))
 
     def list(self, prefix: str = "") -> list[str]:
         folder = _folder(prefix, allow_root=True)
@@ -324,6 +346,24 @@ class MinioStore(ObjectStore):
             return False
         return True
 
+    def stat_size(self, key: str) -> int:
+        validate_key(key)
+        with self._errors("read", key):
+            return int(self.client.stat_object(self.bucket, key).size)
+
+    def get_range(self, key: str, start: int, length: int) -> bytes:
+        validate_key(key)
+        if length <= 0:
+            return b""
+        with self._errors("read", key):
+            response = self.client.get_object(self.bucket, key, offset=max(0, start),
+                                              length=length)  # fmt: skip
+            try:
+                return response.read()
+            finally:
+                response.close()
+                response.release_conn()
+
     def list(self, prefix: str = "") -> list[str]:
         folder = _folder(prefix, allow_root=True)
         with self._errors("list", folder):
@@ -401,23 +441,17 @@ class RetryingStore(ObjectStore):
     def get_bytes(self, key: str) -> bytes:
         return self._call("get_bytes", key)
 
-    def put_file(self, key: str, path: str | os.PathLike, content_type: str = OCTET_STREAM) -> None:
-        self._call("put_file", key, path, content_type)
-
-    def get_file(self, key: str, path: str | os.PathLike) -> None:
-        self._call("get_file", key, path)
-
     def exists(self, key: str) -> bool:
         return self._call("exists", key)
 
-    def size(self, key: str) -> int:
-        return self._call("size", key)
+    def stat_size(self, key: str) -> int:
+        return self._call("stat_size", key)
+
+    def get_range(self, key: str, start: int, length: int) -> bytes:
+        return self._call("get_range", key, start, length)
 
     def list(self, prefix: str = "") -> list[str]:
         return self._call("list", prefix)
-
-    def delete(self, key: str) -> None:
-        self._call("delete", key)
 
     def delete_prefix(self, prefix: str) -> int:
         return self._call("delete_prefix", prefix)

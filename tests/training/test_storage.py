@@ -75,6 +75,19 @@ def test_missing_key(store: ObjectStore) -> None:
     assert isinstance(info.value, StoreError)
 
 
+def test_ranged_reads(store: ObjectStore) -> None:
+    data = bytes(range(256)) * 4
+    store.put_bytes("m/videos/1.mp4", data, "video/mp4")
+    assert store.stat_size("m/videos/1.mp4") == len(data)
+    assert store.get_range("m/videos/1.mp4", 4, 8) == data[4:12]
+    assert store.get_range("m/videos/1.mp4", 1020, 100) == data[1020:]  # fewer at the end
+    assert store.get_range("m/videos/1.mp4", 0, 0) == b""
+    with pytest.raises(ObjectNotFound):
+        store.stat_size("m/videos/none.mp4")
+    with pytest.raises(ObjectNotFound):
+        store.get_range("m/videos/none.mp4", 0, 4)
+
+
 def test_folder_is_not_an_object(store: ObjectStore) -> None:
     store.put_bytes("m/model/x.zip", b"x")
     assert not store.exists("m/model")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from training.errors import ServiceError
+from training.http import Media
 from training.interchange.carmodel import CarExportError
 from training.interchange.export import (
     build_car_archive,
@@ -106,10 +107,13 @@ def logs_archive(model: RacingModel) -> bytes:
     return build_logs_archive(files)
 
 
-def evaluation_video(evaluation: EvaluationJob) -> bytes:
+def evaluation_video(evaluation: EvaluationJob) -> Media:
+    """The evaluation's MP4 as ranged reads from the store (never loaded whole)."""
     if not evaluation.has_video:
         raise ServiceError("this evaluation has no video")
+    store, key = get_store(), keys_for(evaluation.model_id).video(evaluation.pk)
     try:
-        return get_store().get_bytes(keys_for(evaluation.model_id).video(evaluation.pk))
+        size = store.stat_size(key)
     except StoreError as exc:
         raise ServiceError(f"the video could not be read: {exc}") from None
+    return Media(size, lambda start, length: store.get_range(key, start, length))
