@@ -6,6 +6,7 @@ subprocess on the test database; screenshots go to test-artifacts/browser/."""
 from __future__ import annotations
 
 import io
+import re
 import tarfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -120,12 +121,13 @@ def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, we
     page.click("#start-training")
     expect(page.locator("#stop-training")).to_be_visible()
     page.evaluate("window.__sameDocument = true")
-    page.wait_for_function(
-        "Number(document.getElementById('training-video').dataset.frames) >= 3", timeout=180_000
+    # Playwright's expect, not wait_for_function: the page's CSP forbids evaluating strings.
+    expect(page.locator("#training-video")).to_have_attribute(
+        "data-frames", re.compile(r"^([3-9]|\d{2,})$"), timeout=180_000
     )
     shot(page, "03-training-video", "#training")
-    page.wait_for_function(
-        "Number(document.getElementById('reward-chart').dataset.points) >= 1", timeout=240_000
+    expect(page.locator("#reward-chart")).to_have_attribute(
+        "data-points", re.compile(r"^[1-9]\d*$"), timeout=240_000
     )
     assert page.evaluate("window.__sameDocument === true"), "the page reloaded"
     shot(page, "04-training-chart", "#training")

@@ -14,10 +14,6 @@ tests/console/test_console_browser.py drives those for real.
 from __future__ import annotations
 
 import os
-import socket
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import timedelta
@@ -27,7 +23,7 @@ from unittest import mock
 import numpy as np
 import pytest
 
-from tests.support import database_url, free_port
+from tests.support import celery_worker_process, daphne_process, database_url
 
 ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = ROOT / "test-artifacts" / "browser" / "layout"
@@ -197,30 +193,13 @@ def site(redis_env, tmp_path, settings) -> Iterator[Site]:
     env = {**os.environ, **redis_env, "DATABASE_URL": database_url(), "DEBUG": "1",
            "STORE_DIR": str(settings.STORE_DIR), "DJANGO_SETTINGS_MODULE": "console.settings",
            "RACECRAFT_TRACKS_DIR": str(settings.RACECRAFT_TRACKS_DIR)}  # fmt: skip
-    port = free_port()
-    log_path = tmp_path / "daphne.log"
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "daphne", "-b", "127.0.0.1", "-p", str(port),
-             "console.asgi:application"],
-            cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
-        )  # fmt: skip
-        try:
-            deadline = time.monotonic() + 60
-            while True:
-                assert proc.poll() is None, log_path.read_text()
-                assert time.monotonic() < deadline, "daphne did not start"
-                with socket.socket() as s:
-                    if s.connect_ex(("127.0.0.1", port)) == 0:
-                        break
-                time.sleep(0.2)
-            yield Site(url=f"http://127.0.0.1:{port}", **ids)
-        finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+    # The shared servers of tests/support.py: daphne, and a worker for the quick queue, where
+    # reward validation runs (the web process runs no reward code).
+    with (
+        daphne_process(env=env, log_path=tmp_path / "daphne.log") as server,
+        celery_worker_process(queues=["default"], env=env, log_path=tmp_path / "worker.log"),
+    ):
+        yield Site(url=server.url, **ids)
 
 
 @pytest.fixture

@@ -144,7 +144,7 @@ BAD: list[tuple[str, dict[str, Any] | Any, str, str]] = [
             "action_space": [{"steering_angle": 45, "speed": 1}, {"steering_angle": 0, "speed": 1}],
         },
         "action_space",
-        "steering_angle",
+        "steering angle",
     ),
     (
         "speed too high",
