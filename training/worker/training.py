@@ -59,8 +59,11 @@ class JobHooks(TrainingHooks):
         self.frames = live.FramePublisher(self.group)
         self.should_stop = StopFlag(job)
         hp = parse_hyperparameters(self.model.hyperparameters, self.model.algorithm)
-        self.log = TrainingLog(hp.num_episodes_between_training)
-        # A resumed job numbers on from the iterations and episodes it already recorded.
+        # A resumed job numbers on from the iterations and episodes it already recorded; its
+        # log starts a fresh sim-trace file (never rewrites a file of the earlier run).
+        per = hp.num_episodes_between_training
+        logged = EpisodeMetric.objects.filter(job=job, phase="training").count()
+        self.log = TrainingLog(per, logged_episodes=-(-logged // per) * per)
         self._finished = job.episodes  # training episodes finished so far
         self._counted_at = 0.0
         self._iteration_offset = job.iterations

@@ -33,3 +33,26 @@ def test_finished_episodes_are_counted_while_the_iteration_runs(monkeypatch):
         assert job.episodes == 3  # at most one write per interval
     finally:
         hooks.close()
+
+
+def test_a_resumed_job_logs_into_a_new_sim_trace_file():
+    from training.models import EpisodeMetric
+
+    alice = get_user_model().objects.create_user("alice", password="pw-alice-123")
+    model = services.model_create(owner=alice, name="m1", track_id="racecraft_oval",
+                                  action_space=ACTIONS, validate_reward=False,
+                                  reward_function=REWARD,
+                                  hyperparameters={"num_episodes_between_training": 4})  # fmt: skip
+    job = TrainingJob.objects.create(model=model, max_minutes=5, status=JobStatus.IN_PROGRESS)
+    # The earlier run logged one whole iteration (4 episodes) and one cut short (2).
+    EpisodeMetric.objects.bulk_create(
+        EpisodeMetric(job=job, iteration=1 + n // 4, episode=n + 1, phase="training",
+                      reward_score=0, completion_percentage=0, episode_status="off_track",
+                      elapsed_time_in_milliseconds=0, start_time=0, metric_time=0)
+        for n in range(6)
+    )  # fmt: skip
+    hooks = worker_training.JobHooks(job)
+    try:
+        assert hooks.log.logged == 8  # numbering goes on at the third iteration (file 2)
+    finally:
+        hooks.close()
