@@ -14,7 +14,8 @@ evenly round the lap, with the deterministic policy and training's episode rules
 resets: an episode ends off track, reversed, immobilized or at the lap). The figures are
 progress and steps, not times: they do not depend on the machine's load.
 
-    .venv/bin/python bench/bench_imported.py [--episodes 8] [--steps 40000] [--seed 0]
+    .venv/bin/python bench/bench_imported.py [--episodes 8] [--steps 12000] [--seed 0]
+        [--tracks-dir DIR]
 
 Last line: ``aws_median_progress=… racecraft_median_progress=… ratio=…`` (the AWS models'
 median episode progress over all their episodes, the Racecraft model's, and AWS / Racecraft).
@@ -146,8 +147,8 @@ class StepBudget(TrainingHooks):
         return self.steps >= self.budget
 
 
-def train_racecraft(actions, budget: int, seed: int, scratch: Path, metadata_of):
-    shutil.copy(SHARED / f"{TRACK}.npy", scratch / f"{TRACK}.npy")
+def train_racecraft(actions, budget: int, seed: int, scratch: Path, metadata_of, tracks: Path):
+    shutil.copy(tracks / f"{TRACK}.npy", scratch / f"{TRACK}.npy")
     spec = EnvSpec(
         track=TRACK, track_dirs=(str(scratch),), action_space=actions, alternate_direction=True
     )
@@ -178,12 +179,13 @@ def train_racecraft(actions, budget: int, seed: int, scratch: Path, metadata_of)
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=8, help="per direction")
-    parser.add_argument("--steps", type=int, default=40_000, help="Racecraft training budget")
+    parser.add_argument("--steps", type=int, default=12_000, help="Racecraft training budget")
+    parser.add_argument("--tracks-dir", type=Path, default=SHARED, help="holds reinvent_base.npy")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-train", action="store_true", help="only the AWS models")
     args = parser.parse_args()
     torch.set_num_threads(2)
-    track = Track.from_file(SHARED / f"{TRACK}.npy")
+    track = Track.from_file(args.tracks_dir / f"{TRACK}.npy")
 
     drives: list[Drive] = []
     actions = None
@@ -203,7 +205,7 @@ def main() -> None:
         print(f"racecraft lean PPO: training {args.steps} steps on {TRACK}", flush=True)
         with tempfile.TemporaryDirectory() as tmp:
             model, trained_steps = train_racecraft(
-                actions, args.steps, args.seed, Path(tmp), metadata_of
+                actions, args.steps, args.seed, Path(tmp), metadata_of, args.tracks_dir
             )
         drives.append(
             drive(f"racecraft lean {trained_steps // 1000}k", model, actions, track, args.episodes)
