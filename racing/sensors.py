@@ -26,18 +26,28 @@ from racing.drawing import MAX_DRAW_DISTANCE_M, BoxSet, draw_boxes
 from racing.lidar import SENSOR_DISCRETIZED_LIDAR, SENSOR_LIDAR, SENSOR_SECTOR_LIDAR
 from racing.objects import KIND_BOT, RaceObject
 from racing.quiet_pybullet import pb
-from racing.texture import GroundTexture, render_ground
+from racing.texture import WALL_GRAY, WALL_RGB, GroundTexture, render_ground
 from racing.track import Track
 
 CAMERA_WIDTH = 160
 CAMERA_HEIGHT = 120
-CAMERA_HFOV_DEG = 120.0
-"""DeepRacer's wide-angle front camera: 120° across, 160×120 grayscale, 15 fps."""
-CAMERA_X_M = 0.20
-"""Camera position ahead of the car's origin (rear-axle middle), metres."""
-CAMERA_HEIGHT_M = 0.12
-CAMERA_PITCH_DEG = 20.0
-"""Camera tilt below the horizontal, degrees."""
+CAMERA_HFOV_DEG = math.degrees(1.13)
+"""DeepRacer's simulated front camera, 160×120 grayscale at 15 fps: SimApp's Gazebo sensor
+(``zed_camera_left_sensor`` in ``urdf/deepracer/racecar.gazebo``) has ``horizontal_fov`` 1.13 rad
+(64.7°) at 640×480 with no distortion, an image the agent sees shrunk to 160×120. (The physical
+car's lens is wider; the models are trained on the simulator's.)"""
+CAMERA_X_M = 0.227
+"""Camera position ahead of the car's origin (rear-axle middle), metres. SimApp's racecar URDF
+(``deepracer_single_cam_lidar.urdf``): ``camera_link`` sits 0.0447 m ahead and 0.04 m above
+``zed_camera_link`` (``zed_camera_joint``: 0.0917 m ahead of and 0.0800 m above the chassis,
+pitched 0.2618 rad), which is 0.0817 m ahead of the rear axle: 0.227 m ahead, 0.130 m above
+``base_link``, whose wheels' centres are 0.039 m up, so 0.126 m above the ground with
+DeepRacer's 0.035 m wheels."""
+CAMERA_HEIGHT_M = 0.126
+CAMERA_PITCH_DEG = 15.0
+"""Camera tilt below the horizontal, degrees (SimApp's ``zed_camera_joint``: pitch 0.2618 rad).
+The horizon is then 21% from the top of the frame, and DeepRacer's walls begin a few rows
+below it (~28% on its frames)."""
 STEREO_BASELINE_M = 0.06
 """Distance between the two lenses of the stereo camera, metres."""
 
@@ -122,13 +132,11 @@ def camera_frame(pose: Pose, mount: CameraMount) -> tuple[np.ndarray, np.ndarray
 
 
 def _backdrop(height: int, width: int, channels: int) -> np.ndarray:
-    """A plain wall with a lighter band at the top, what sits behind the track."""
-    rows = np.linspace(150, 105, height, dtype=np.float32)[:, None]
-    img = np.repeat(rows, width, axis=1)
+    """What the camera sees above the ground: DeepRacer's dark walls round its tracks (gray
+    ~2-25 on its frames), one flat colour (drawn once; a frame only copies it)."""
     if channels == 1:
-        return img.astype(np.uint8)
-    tint = np.array([0.92, 0.96, 1.0], dtype=np.float32)
-    return (img[..., None] * tint).astype(np.uint8)
+        return np.full((height, width), WALL_GRAY, dtype=np.uint8)
+    return np.broadcast_to(np.array(WALL_RGB, dtype=np.uint8), (height, width, 3)).copy()
 
 
 class PinholeCamera:

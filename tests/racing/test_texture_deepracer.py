@@ -60,3 +60,51 @@ def test_camera_frame_shows_the_surfaces_in_order() -> None:
     assert frame.max() >= gray(BORDER_RGB) - 6  # a border in view
     ground = frame[camera.first_ground_row + 2 :].astype(int)
     assert (np.abs(ground - gray(FLOOR_RGB)) < 4).mean() > 0.05  # grass beyond the borders
+
+
+def deepracer_frames() -> list[np.ndarray]:
+    """DeepRacer's camera frames as the agent sees them: 160×120 grayscale."""
+    aws_samples()  # downloads the pictures once (or skips)
+    frames = []
+    for picture in sorted((CACHE / "pictures").glob("*.png")):
+        small = cv2.resize(cv2.imread(str(picture)), (160, 120), interpolation=cv2.INTER_AREA)
+        frames.append(cv2.cvtColor(small, cv2.COLOR_BGR2GRAY))
+    return frames
+
+
+def ground_top(frame: np.ndarray) -> int:
+    """The row below the lowest dark row of the frame's upper half (the walls' foot): where
+    the ground (the far grass) begins, just below the horizon."""
+    dark = np.flatnonzero(np.median(frame[:60].astype(int), axis=1) < 30)
+    return int(dark.max()) + 1 if dark.size else 0
+
+
+def ahead_on(track, progress: float) -> Pose:
+    s = progress / 100 * track.length
+    x, y = track.point_at(s)
+    return Pose(x, y, track.heading_at(s))
+
+
+def test_horizon_and_walls_are_where_deepracers_are(reinvent) -> None:
+    """DeepRacer's frames: dark walls (median ~2-25) down to ~28% of the frame, then the grass
+    and the track; asphalt fills the bottom rows. Our camera at DeepRacer's mount and lens
+    (SimApp's racecar) shows the same rows, walls as dark and the same asphalt below."""
+    theirs = deepracer_frames()
+    camera = PinholeCamera(ground_for(reinvent, resolution=0.005, rgb=False))
+    ours = [camera.render(ahead_on(reinvent, p)) for p in (0, 15, 30, 45, 60, 75, 90)]
+    their_rows = [ground_top(f) for f in theirs]
+    our_rows = [ground_top(f) for f in ours]
+    assert min(their_rows) >= 28 and max(their_rows) <= 40, their_rows  # ~24-31% of 120
+    assert min(their_rows) - 4 <= np.median(our_rows) <= max(their_rows) + 2, (
+        our_rows,
+        their_rows,
+    )
+    for frames, rows in ((theirs, their_rows), (ours, our_rows)):
+        for frame, row in zip(frames, rows, strict=True):
+            assert np.median(frame[: row - 1]) < 30, row  # walls (ours: the backdrop) are dark
+    # The bottom rows: mostly asphalt (the car sees the road ahead, not its borders).
+    their_road = np.median([np.median(f[-20:]) for f in theirs])
+    our_road = np.median([np.median(f[-20:]) for f in ours])
+    assert abs(their_road - our_road) < 6, (their_road, our_road)
+    asphalt = [((f[-20:] > 35) & (f[-20:] < 75)).mean() for f in ours]
+    assert np.median(asphalt) > 0.8, asphalt
