@@ -36,18 +36,21 @@ CAMERA_HFOV_DEG = math.degrees(1.13)
 (``zed_camera_left_sensor`` in ``urdf/deepracer/racecar.gazebo``) has ``horizontal_fov`` 1.13 rad
 (64.7°) at 640×480 with no distortion, an image the agent sees shrunk to 160×120. (The physical
 car's lens is wider; the models are trained on the simulator's.)"""
-CAMERA_X_M = 0.227
+CAMERA_X_M = 0.225
 """Camera position ahead of the car's origin (rear-axle middle), metres. SimApp's racecar URDF
-(``deepracer_single_cam_lidar.urdf``): ``camera_link`` sits 0.0447 m ahead and 0.04 m above
-``zed_camera_link`` (``zed_camera_joint``: 0.0917 m ahead of and 0.0800 m above the chassis,
-pitched 0.2618 rad), which is 0.0817 m ahead of the rear axle: 0.227 m ahead, 0.130 m above
-``base_link``, whose wheels' centres are 0.039 m up, so 0.126 m above the ground with
-DeepRacer's 0.035 m wheels."""
-CAMERA_HEIGHT_M = 0.126
-CAMERA_PITCH_DEG = 15.0
-"""Camera tilt below the horizontal, degrees (SimApp's ``zed_camera_joint``: pitch 0.2618 rad).
-The horizon is then 21% from the top of the frame, and DeepRacer's walls begin a few rows
-below it (~28% on its frames)."""
+(``urdf/deepracer/deepracer_single_cam_lidar.urdf``): ``camera_link`` sits 0.0448 m ahead of and
+0.04 m above ``zed_camera_link``, which ``zed_camera_joint`` puts 0.0917 m ahead of and 0.0800 m
+above the chassis, pitched down 0.2618 rad (15°); the chassis is 0.0817 m ahead of the rear
+axle. The URDF's front wheel centres sit 4 mm lower in the chassis than the rear ones
+(0.01176 m vs 0.01575 m, axles 0.164 m apart), so on level ground the body rakes nose-up by
+1.4°: the lens is 0.225 m ahead of the rear axle and 0.132 m above the ground (DeepRacer's
+0.035 m wheels), looking 13.6° down."""
+CAMERA_HEIGHT_M = 0.132
+CAMERA_PITCH_DEG = 15.0 - math.degrees(math.atan2(0.01575 - 0.011759, 0.082311 + 0.081663))
+"""Camera tilt below the horizontal, degrees: the URDF's 15° less the body's 1.4° rake. The
+horizon is then 24% from the top of the frame, as on DeepRacer's frames, and the centre-line
+dashes on them, projected back to the ground, come out evenly spaced (~10 cm, as
+:data:`racing.texture.CENTRE_DASH_M` paints them; at 15° they would shrink with distance)."""
 STEREO_BASELINE_M = 0.06
 """Distance between the two lenses of the stereo camera, metres."""
 
