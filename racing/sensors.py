@@ -52,7 +52,9 @@ horizon is then 24% from the top of the frame, as on DeepRacer's frames, and the
 dashes on them, projected back to the ground, come out evenly spaced (~10 cm, as
 :data:`racing.texture.CENTRE_DASH_M` paints them; at 15° they would shrink with distance)."""
 STEREO_BASELINE_M = 0.06
-"""Distance between the two lenses of the stereo camera, metres."""
+"""Distance between the two lenses of the stereo camera, metres (SimApp's
+``deepracer_stereo_cam.urdf``: the two ``zed_camera_joint``s at ±0.03 m, otherwise as the single
+camera's)."""
 
 SENSOR_CAMERA = "FRONT_FACING_CAMERA"
 SENSOR_STEREO = "STEREO_CAMERAS"
