@@ -183,6 +183,7 @@ def main() -> None:
     parser.add_argument("--tracks-dir", type=Path, default=SHARED, help="holds reinvent_base.npy")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-train", action="store_true", help="only the AWS models")
+    parser.add_argument("--no-aws", action="store_true", help="only the model trained here")
     args = parser.parse_args()
     torch.set_num_threads(2)
     track = Track.from_file(args.tracks_dir / f"{TRACK}.npy")
@@ -190,9 +191,11 @@ def main() -> None:
     drives: list[Drive] = []
     actions = None
     for name, model, model_actions in aws_models():
+        actions = model_actions  # the Racecraft model gets the AWS model's action space
+        if args.no_aws:
+            break
         print(f"{name}: driving", flush=True)
         drives.append(drive(name, model, model_actions, track, args.episodes))
-        actions = model_actions  # the Racecraft model gets the AWS model's action space
     aws = list(drives)
 
     trained_steps = 0
@@ -223,10 +226,11 @@ def main() -> None:
             f"{max(d.progress):>8.1f}{d.laps:>6}{np.median(d.by_direction['ccw']):>11.1f}"
             f"{np.median(d.by_direction['cw']):>10.1f}{np.median(d.steps):>14.0f}  {per}"
         )
-    aws_median = float(np.median([p for d in aws for p in d.progress]))
+    aws_progress = [p for d in aws for p in d.progress] or [float("nan")]
+    aws_median = float(np.median(aws_progress))
     aws_laps = sum(d.laps for d in aws)
     line = f"aws_median_progress={aws_median:.1f} aws_max_progress="
-    line += f"{max(p for d in aws for p in d.progress):.1f} aws_laps={aws_laps}"
+    line += f"{max(aws_progress):.1f} aws_laps={aws_laps}"
     if len(drives) > len(aws):
         ours = drives[-1]
         ours_median = float(np.median(ours.progress))
