@@ -14,7 +14,7 @@ evenly round the lap, with the deterministic policy and training's episode rules
 resets: an episode ends off track, reversed, immobilized or at the lap). The figures are
 progress and steps, not times: they do not depend on the machine's load.
 
-    .venv/bin/python bench/bench_imported.py [--episodes 8] [--steps 12000] [--seed 0]
+    .venv/bin/python bench/bench_imported.py [--episodes 8] [--steps 3000] [--seed 0]
         [--tracks-dir DIR]
 
 Last line: ``aws_median_progress=… racecraft_median_progress=… ratio=…`` (the AWS models'
@@ -179,7 +179,7 @@ def train_racecraft(actions, budget: int, seed: int, scratch: Path, metadata_of,
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=8, help="per direction")
-    parser.add_argument("--steps", type=int, default=12_000, help="Racecraft training budget")
+    parser.add_argument("--steps", type=int, default=3_000, help="Racecraft training budget")
     parser.add_argument("--tracks-dir", type=Path, default=SHARED, help="holds reinvent_base.npy")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-train", action="store_true", help="only the AWS models")
