@@ -26,20 +26,35 @@ from racing.drawing import MAX_DRAW_DISTANCE_M, BoxSet, draw_boxes
 from racing.lidar import SENSOR_DISCRETIZED_LIDAR, SENSOR_LIDAR, SENSOR_SECTOR_LIDAR
 from racing.objects import KIND_BOT, RaceObject
 from racing.quiet_pybullet import pb
-from racing.texture import GroundTexture, render_ground
+from racing.texture import WALL_GRAY, WALL_RGB, GroundTexture, render_ground
 from racing.track import Track
 
 CAMERA_WIDTH = 160
 CAMERA_HEIGHT = 120
-CAMERA_HFOV_DEG = 120.0
-"""DeepRacer's wide-angle front camera: 120° across, 160×120 grayscale, 15 fps."""
-CAMERA_X_M = 0.20
-"""Camera position ahead of the car's origin (rear-axle middle), metres."""
-CAMERA_HEIGHT_M = 0.12
-CAMERA_PITCH_DEG = 20.0
-"""Camera tilt below the horizontal, degrees."""
+CAMERA_HFOV_DEG = math.degrees(1.13)
+"""DeepRacer's simulated front camera, 160×120 grayscale at 15 fps: SimApp's Gazebo sensor
+(``zed_camera_left_sensor`` in ``urdf/deepracer/racecar.gazebo``) has ``horizontal_fov`` 1.13 rad
+(64.7°) at 640×480 with no distortion, an image the agent sees shrunk to 160×120. (The physical
+car's lens is wider; the models are trained on the simulator's.)"""
+CAMERA_X_M = 0.225
+"""Camera position ahead of the car's origin (rear-axle middle), metres. SimApp's racecar URDF
+(``urdf/deepracer/deepracer_single_cam_lidar.urdf``): ``camera_link`` sits 0.0448 m ahead of and
+0.04 m above ``zed_camera_link``, which ``zed_camera_joint`` puts 0.0917 m ahead of and 0.0800 m
+above the chassis, pitched down 0.2618 rad (15°); the chassis is 0.0817 m ahead of the rear
+axle. The URDF's front wheel centres sit 4 mm lower in the chassis than the rear ones
+(0.01176 m vs 0.01575 m, axles 0.164 m apart), so on level ground the body rakes nose-up by
+1.4°: the lens is 0.225 m ahead of the rear axle and 0.132 m above the ground (DeepRacer's
+0.035 m wheels), looking 13.6° down."""
+CAMERA_HEIGHT_M = 0.132
+CAMERA_PITCH_DEG = 15.0 - math.degrees(math.atan2(0.01575 - 0.011759, 0.082311 + 0.081663))
+"""Camera tilt below the horizontal, degrees: the URDF's 15° less the body's 1.4° rake. The
+horizon is then 24% from the top of the frame, as on DeepRacer's frames, and the centre-line
+dashes on them, projected back to the ground, come out evenly spaced (~10 cm, as
+:data:`racing.texture.CENTRE_DASH_M` paints them; at 15° they would shrink with distance)."""
 STEREO_BASELINE_M = 0.06
-"""Distance between the two lenses of the stereo camera, metres."""
+"""Distance between the two lenses of the stereo camera, metres (SimApp's
+``deepracer_stereo_cam.urdf``: the two ``zed_camera_joint``s at ±0.03 m, otherwise as the single
+camera's)."""
 
 SENSOR_CAMERA = "FRONT_FACING_CAMERA"
 SENSOR_STEREO = "STEREO_CAMERAS"
@@ -122,13 +137,11 @@ def camera_frame(pose: Pose, mount: CameraMount) -> tuple[np.ndarray, np.ndarray
 
 
 def _backdrop(height: int, width: int, channels: int) -> np.ndarray:
-    """A plain wall with a lighter band at the top, what sits behind the track."""
-    rows = np.linspace(150, 105, height, dtype=np.float32)[:, None]
-    img = np.repeat(rows, width, axis=1)
+    """What the camera sees above the ground: DeepRacer's dark walls round its tracks (gray
+    ~2-25 on its frames), one flat colour (drawn once; a frame only copies it)."""
     if channels == 1:
-        return img.astype(np.uint8)
-    tint = np.array([0.92, 0.96, 1.0], dtype=np.float32)
-    return (img[..., None] * tint).astype(np.uint8)
+        return np.full((height, width), WALL_GRAY, dtype=np.uint8)
+    return np.broadcast_to(np.array(WALL_RGB, dtype=np.uint8), (height, width, 3)).copy()
 
 
 class PinholeCamera:

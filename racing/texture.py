@@ -22,6 +22,9 @@ ROAD_RGB = (41, 55, 72)
 BORDER_RGB = (207, 209, 204)
 CENTRE_RGB = (209, 128, 8)
 START_RGB = (207, 209, 204)
+WALL_RGB = (10, 20, 23)
+"""DeepRacer's dark walls round the track (gray ~17; 2-25 on its frames): what the camera sees
+beyond the ground picture and above the ground (:func:`racing.sensors._backdrop`)."""
 
 BORDER_LINE_M = 0.076
 """Width of the white border lines, metres, painted inside the road. On DeepRacer's frames a
@@ -76,14 +79,20 @@ class GroundTexture:
 
     @property
     def floor_value(self) -> int | tuple[int, int, int]:
+        """What lies beyond the picture (``MARGIN_M`` of grass round the track): DeepRacer's
+        dark walls, whose foot the camera sees a few rows below the horizon."""
         if self.image.ndim == 2:
-            return int(_gray(FLOOR_RGB))
-        return FLOOR_RGB
+            return WALL_GRAY
+        return WALL_RGB
 
 
 def _gray(rgb: tuple[int, int, int]) -> float:
     r, g, b = rgb
     return 0.299 * r + 0.587 * g + 0.114 * b
+
+
+WALL_GRAY = int(round(_gray(WALL_RGB)))
+"""The walls as the grayscale camera sees them."""
 
 
 def _fixed(tex_pts: np.ndarray) -> np.ndarray:

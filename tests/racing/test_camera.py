@@ -46,7 +46,9 @@ def test_fast_camera_matches_pybullet_render(reinvent, cameras, progress, offset
     pose = pose_on(reinvent, progress, offset, turn)
     a = fast.render(pose).astype(np.int16)
     b = reference.render(pose).astype(np.int16)
-    ground = slice(fast.first_ground_row + 3, None)  # the backdrop above differs by design
+    # Above: the walls (the backdrop, and beyond the ground picture's margin) differ by design:
+    # PyBullet shows its light background there. A few rows cover metres of far ground.
+    ground = slice(fast.first_ground_row + 8, None)
     diff = np.abs(a[ground] - b[ground])
     assert diff.mean() < 12, f"mean abs difference {diff.mean():.1f}"
     # Same road where it matters: dark asphalt pixels agree (IoU).

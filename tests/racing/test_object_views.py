@@ -50,7 +50,8 @@ def test_a_box_behind_the_camera_is_not_drawn(reinvent):
 
 
 def test_nearer_boxes_cover_farther_ones():
-    mount = CameraMount()
+    # The wide 120° lens the scene was laid out for (DeepRacer's own is narrower).
+    mount = CameraMount(forward=0.2, height=0.12, pitch_deg=20.0, hfov_deg=120.0)
     pose = Pose(0.0, 0.0, 0.0)
     pos, rot = camera_frame(pose, mount)
     near = box_corners(1.0, 0.0, 0.0, 0.24, 0.39, 0.27)
