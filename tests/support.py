@@ -40,6 +40,17 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networki
 S3_ACCESS_KEY, S3_SECRET_KEY = "racecraft-test", "racecraft-test-secret"
 
 
+OVAL_ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
+"""Six discrete actions the end-to-end tests train with."""
+CENTRE_LINE_REWARD = """
+def reward_function(params):
+    if not params["all_wheels_on_track"]:
+        return 1e-3
+    return 1.0 - params["distance_from_center"] / params["track_width"]
+"""
+"""A reward that pays for staying near the centre line (the end-to-end tests' reward)."""
+
+
 def database_url() -> str:
     """The test database as a DATABASE_URL, so a child process uses the same one."""
     db = connection.settings_dict

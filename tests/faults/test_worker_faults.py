@@ -24,7 +24,9 @@ from console.celery import app as celery_app
 from console.launcher import EmbeddedRedis, Supervisor
 from console.redisconf import celery_settings
 from console.redisconf import channel_layers as channel_layers_setting
-from tests.faults.workers import ACTIONS, REWARD, SMALL, celery_worker, wait_for
+from tests.faults.workers import SMALL, celery_worker, wait_for
+from tests.support import CENTRE_LINE_REWARD as REWARD
+from tests.support import OVAL_ACTIONS as ACTIONS
 from training import services
 from training.models import IterationMetric, JobStatus, RacingModel, TrainingJob
 from training.store import get_store, keys_for

@@ -17,13 +17,6 @@ import pytest
 from tests.support import database_url
 
 ROOT = Path(__file__).resolve().parents[2]
-ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
-REWARD = """
-def reward_function(params):
-    if not params["all_wheels_on_track"]:
-        return 1e-3
-    return 1.0 - params["distance_from_center"] / params["track_width"]
-"""
 SMALL = {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}
 
 

@@ -18,6 +18,8 @@ from django.contrib.auth import get_user_model
 from django.core.management import call_command
 from django.core.management.base import CommandError
 
+from tests.support import CENTRE_LINE_REWARD as REWARD
+from tests.support import OVAL_ACTIONS as ACTIONS
 from training import services
 from training.management import cli
 from training.management.progress import ProgressBar, render_bar
@@ -25,13 +27,6 @@ from training.models import EvaluationJob, JobStatus, RacingModel, TrainingJob
 from training.store import get_store, keys_for
 
 ROOT = Path(__file__).resolve().parents[3]
-ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
-REWARD = """
-def reward_function(params):
-    if not params["all_wheels_on_track"]:
-        return 1e-3
-    return 1.0 - params["distance_from_center"] / params["track_width"]
-"""
 TINY_HYPERPARAMETERS = {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}
 
 

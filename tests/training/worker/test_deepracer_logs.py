@@ -19,6 +19,8 @@ from django.contrib.auth import get_user_model
 from django.db import connections
 from moto.server import ThreadedMotoServer
 
+from tests.support import CENTRE_LINE_REWARD as REWARD
+from tests.support import OVAL_ACTIONS as ACTIONS
 from training import services
 from training.models import EpisodeMetric, EvaluationJob, TrainingJob
 from training.services import downloads
@@ -35,13 +37,6 @@ from deepracer.logs import (  # noqa: E402 - only once the reader is known to be
 
 pytestmark = [pytest.mark.django_db(transaction=True), pytest.mark.slow]
 ACCESS, SECRET = "racecraft-test", "racecraft-test-secret"
-ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
-REWARD = """
-def reward_function(params):
-    if not params["all_wheels_on_track"]:
-        return 1e-3
-    return 1.0 - params["distance_from_center"] / params["track_width"]
-"""
 EPISODES_PER_ITERATION = 4
 
 

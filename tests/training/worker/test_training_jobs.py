@@ -13,19 +13,13 @@ import numpy as np
 import pytest
 from django.contrib.auth import get_user_model
 
+from tests.support import CENTRE_LINE_REWARD as REWARD
+from tests.support import OVAL_ACTIONS as ACTIONS
 from tests.support import ChildProcess
 from training import services
 from training.models import EvaluationJob, IterationMetric, JobStatus, RacingModel, TrainingJob
 from training.services import downloads
 from training.store import get_store, keys_for
-
-ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
-REWARD = """
-def reward_function(params):
-    if not params["all_wheels_on_track"]:
-        return 1e-3
-    return 1.0 - params["distance_from_center"] / params["track_width"]
-"""
 
 pytestmark = [pytest.mark.django_db(transaction=True), pytest.mark.slow]
 
