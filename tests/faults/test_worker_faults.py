@@ -18,6 +18,7 @@ from channels.layers import channel_layers
 from django.conf import settings as django_settings
 from django.contrib.auth import get_user_model
 from django.db import connection
+from kombu import pools as kombu_pools
 from moto.server import ThreadedMotoServer
 
 from console.celery import app as celery_app
@@ -94,10 +95,13 @@ def test_sigkill_of_the_worker_process_mid_training_resumes_the_job(store_dir, r
 
 
 def _reset_broker_pools() -> None:
-    """Forget connections to the previous broker (the next send connects to the new URL)."""
-    if celery_app._pool is not None:
-        celery_app._pool.force_close_all()
-        celery_app._pool = None
+    """Forget connections to the previous broker (the next send connects to the new URL).
+
+    kombu keeps one pool per broker URL in a registry of its own: closing a pool without
+    clearing that registry would hand the closed pool back once the URL is used again (the
+    next tests' "Acquire on closed pool")."""
+    kombu_pools.reset()
+    celery_app._pool = None
     celery_app.amqp._producer_pool = None
     # The result backend is cached too (per thread, or once when thread-safe).
     celery_app._local.__dict__.pop("backend", None)
