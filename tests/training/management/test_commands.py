@@ -297,7 +297,7 @@ def test_create_train_evaluate_export_import(store_dir, alice, files, tmp_path, 
     out = run("racecraft_evaluate", str(model.pk), "--laps", "3")
     evaluation = EvaluationJob.objects.get(model=model)
     assert evaluation.status == JobStatus.COMPLETED, out
-    assert "Trial  Time" in out and "Off-tracks  Crashes" in out
+    assert re.search(r"Trial\s+Time\s+Progress\s+Status\s+Off-tracks\s+Crashes\s+Resets", out), out
     assert f"Evaluation {evaluation.pk}: Completed" in out
     assert len(evaluation.lap_rows) >= 1
 
