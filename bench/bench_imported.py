@@ -40,13 +40,13 @@ sys.path.insert(0, str(ROOT))  # tests.training.interchange.deepracer_support fe
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from bench_training import BENCH_HYPERPARAMETERS  # noqa: E402 - same PPO settings
 
 from racing.env import RacingEnv  # noqa: E402
 from racing.rules import Status  # noqa: E402
 from racing.track import Track  # noqa: E402
 from training.interchange.deepracer import import_car_archive  # noqa: E402
 from training.rl.checkpoints import load_checkpoint  # noqa: E402
-from training.rl.hyperparams import Hyperparameters  # noqa: E402
 from training.rl.policies import LEAN  # noqa: E402
 from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train  # noqa: E402
 from training.rollout.backends import LocalRollouts  # noqa: E402
@@ -155,13 +155,7 @@ def train_racecraft(actions, budget: int, seed: int, scratch: Path, metadata_of,
     config = TrainingConfig(
         spec=spec,
         network=LEAN,
-        hyperparameters=Hyperparameters(
-            batch_size=64,
-            num_epochs=10,
-            lr=3e-4,
-            discount_factor=0.99,
-            num_episodes_between_training=20,
-        ),  # fmt: skip
+        hyperparameters=BENCH_HYPERPARAMETERS,
         max_minutes=30.0,  # a safety net: the step budget stops it
         reward_source=REWARD,
         num_envs=8,

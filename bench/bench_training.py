@@ -105,18 +105,18 @@ def track_spec(name: str, scratch: Path) -> EnvSpec:
     return EnvSpec(track=name, action_space=ACTIONS)
 
 
+BENCH_HYPERPARAMETERS = Hyperparameters(
+    batch_size=64, num_epochs=10, lr=3e-4, discount_factor=0.99, num_episodes_between_training=20
+)
+"""The benchmarks' PPO settings (this one and bench_imported.py train with the same)."""
+
+
 def run_one(track: str, network: str, minutes: float, scratch: Path, seed: int) -> Run:
     run = Run(track, network)
     config = TrainingConfig(
         spec=track_spec(track, scratch),
         network=network,
-        hyperparameters=Hyperparameters(
-            batch_size=64,
-            num_epochs=10,
-            lr=3e-4,
-            discount_factor=0.99,
-            num_episodes_between_training=20,
-        ),  # fmt: skip
+        hyperparameters=BENCH_HYPERPARAMETERS,
         max_minutes=minutes,
         reward_source=REWARD,
         num_envs=8,
