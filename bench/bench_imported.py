@@ -40,7 +40,6 @@ sys.path.insert(0, str(ROOT))  # tests.training.interchange.deepracer_support fe
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from bench_training import BENCH_HYPERPARAMETERS  # noqa: E402 - same PPO settings
 
 from racing.env import RacingEnv  # noqa: E402
 from racing.rules import Status  # noqa: E402
@@ -48,6 +47,7 @@ from racing.track import Track  # noqa: E402
 from training.interchange.deepracer import import_car_archive  # noqa: E402
 from training.rl.checkpoints import load_checkpoint  # noqa: E402
 from training.rl.policies import LEAN  # noqa: E402
+from training.rl.presets import RACING  # noqa: E402 - the racing preset's PPO settings
 from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train  # noqa: E402
 from training.rollout.backends import LocalRollouts  # noqa: E402
 from training.rollout.envs import EnvSpec  # noqa: E402
@@ -155,7 +155,7 @@ def train_racecraft(actions, budget: int, seed: int, scratch: Path, metadata_of,
     config = TrainingConfig(
         spec=spec,
         network=LEAN,
-        hyperparameters=BENCH_HYPERPARAMETERS,
+        hyperparameters=RACING.hyperparameters,
         max_minutes=30.0,  # a safety net: the step budget stops it
         reward_source=REWARD,
         num_envs=8,

@@ -1,26 +1,41 @@
-"""Wall time for a fresh model to drive three clean 3-lap evaluations in a row.
+"""Time and steps for a fresh model to race: DeepRacer's defaults against the racing preset.
 
-Trains from scratch the way a user's job does: camera observations, DeepRacer's default
-discrete action space shape (5 steering angles x 2 speeds), PPO, the reward below running
-inside the sandboxed rollout workers, and after every policy update one evaluation of 3
-consecutive laps from the start line (the clock includes those evaluations). Stops when three
-evaluations in a row each complete 3 laps, or at the time limit.
+Trains from scratch the way a user's job does (camera observations, PPO on the lean network,
+the reward running inside the sandboxed rollout workers, 8 cars in 2 workers), for the two
+"Start from" choices of the create-model wizard exactly as it gives them
+(:mod:`training.rl.presets`: action space, example reward, hyperparameters). After every policy
+update one evaluation drives 3 consecutive laps from the start line (the clock includes it).
 
-Runs each track with Racecraft's lean default network and with DeepRacer's 3-layer CNN; the
-ratio is the 3-layer CNN's time over the default's (both measured in this run).
+- **defaults** (DeepRacer's defaults) stops at three clean 3-lap evaluations in a row;
+- **fast** (the racing preset) stops at three clean 3-lap evaluations in a row with every lap
+  at most ``--lap-limit`` seconds (10.0).
 
-    .venv/bin/python bench/bench_training.py [--tracks racecraft_summit reinvent_base]
-        [--networks RACECRAFT_LEAN_CNN DEEP_CONVOLUTIONAL_NETWORK_SHALLOW] [--minutes 6]
+Each setup runs ``--seeds`` seeds (0, 1, 2): the figures are medians, with the environment
+steps to the goal (the same on any machine for a seed, give or take float differences between
+CPUs) beside the wall time (which depends on the machine and its load), and where the time went
+(rollouts, policy updates, evaluations). The machine (CPU, cores, load average before and
+after) is printed with them.
 
-reinvent_base is read from ../shared/tracks (DeepRacer's re:Invent 2018 track) when present.
-Last line: ``default_s=… cnn3_s=… ratio=…`` (sums over the tracks; goal: default ≤ 120 s each).
+    .venv/bin/python bench/bench_training.py [--seeds 3] [--minutes 8] [--lap-limit 10.0]
+        [--setups defaults fast] [--track reinvent_base] [--tracks-dir DIR]
+
+A smoke test: ``--seeds 1 --minutes 1``. reinvent_base (DeepRacer's re:Invent 2018 track) is
+read from ``shared/tracks`` next to the repository (never committed); any built-in track works.
+
+Last line: ``defaults_median_s=… defaults_lap_s=… fast_median_s=… fast_lap_s=… best_lap_s=…
+ratio=…``: median seconds to the goal, the median lap of the qualifying evaluations, the best
+evaluated lap of any run, and ``ratio`` = fast_median_s / defaults_median_s (what a fast lap
+costs over a clean slow one, both measured in this run). ``nan`` where a run missed its goal
+within ``--minutes``. Goals (issue 14, quiet 2-core machine): fast ≤ 120 s, defaults ≤ 60 s.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import platform
 import shutil
+import statistics
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -28,144 +43,244 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 
-from training.rl.hyperparams import Hyperparameters  # noqa: E402
-from training.rl.policies import LEAN, SHALLOW  # noqa: E402
+from training.rewards.examples import example_source  # noqa: E402
+from training.rl.presets import DEEPRACER_DEFAULTS, RACING, Preset  # noqa: E402
 from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train  # noqa: E402
 from training.rollout.backends import LocalRollouts  # noqa: E402
 from training.rollout.envs import EnvSpec  # noqa: E402
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "tracks"
-ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, -15, 0, 15, 30) for v in (1.5, 3.0)]
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = next(
+    (p / "shared" / "tracks" for p in ROOT.parents if (p / "shared" / "tracks").is_dir()),
+    ROOT.parent / "shared" / "tracks",
+)
+EVALUATIONS_IN_A_ROW = 3
+EVAL_LAPS = 3
 
-# Pays the speed made good along the track, more near the centre line; nearly nothing off it.
-REWARD = """
-import math
 
-def reward_function(params):
-    if params["is_offtrack"] or not params["all_wheels_on_track"]:
-        return 1e-3
-    waypoints = params["waypoints"]
-    behind, ahead = params["closest_waypoints"]
-    dx = waypoints[ahead][0] - waypoints[behind][0]
-    dy = waypoints[ahead][1] - waypoints[behind][1]
-    error = math.radians(params["heading"]) - math.atan2(dy, dx)
-    along = params["speed"] * math.cos(error)
-    centre = 1.0 - params["distance_from_center"] / (params["track_width"] / 2)
-    return max(1e-3, along * (0.5 + 0.5 * centre))
-"""
+@dataclass(frozen=True)
+class Setup:
+    """A wizard preset and its goal: ``lap_limit_s`` None = any clean lap counts."""
+
+    name: str
+    preset: Preset
+    lap_limit_s: float | None
 
 
 @dataclass
 class Run:
-    track: str
-    network: str
+    """One seed of one setup: the goal (``seconds``/``steps``, None if missed) and the profile."""
+
+    setup: str
+    seed: int
     seconds: float | None = None
+    steps: int | None = None
     iterations: int = 0
-    steps: int = 0
-    lap_times: list[list[float]] = field(default_factory=list)
+    total_steps: int = 0
+    qualifying_laps: list[list[float]] = field(default_factory=list)
+    best_lap_s: float | None = None
     rollout_s: float = 0.0
     update_s: float = 0.0
     eval_s: float = 0.0
     wall_s: float = 0.0
 
 
-class UntilThreeCleanEvaluations(TrainingHooks):
-    def __init__(self, run: Run) -> None:
+class Streak:
+    """Consecutive qualifying evaluations: every one of its laps complete (``laps`` of them)
+    and, with a ``lap_limit_s``, none slower. ``add`` says whether the goal is reached."""
+
+    def __init__(self, *, needed: int = EVALUATIONS_IN_A_ROW, laps: int = EVAL_LAPS,
+                 lap_limit_s: float | None = None) -> None:  # fmt: skip
+        self.needed, self.laps, self.lap_limit_s = needed, laps, lap_limit_s
+        self.evaluations: list[list[float]] = []
+
+    def qualifies(self, complete: bool, lap_times: list[float]) -> bool:
+        if not complete or len(lap_times) < self.laps:
+            return False
+        return self.lap_limit_s is None or max(lap_times) <= self.lap_limit_s
+
+    def add(self, complete: bool, lap_times: list[float]) -> bool:
+        if self.qualifies(complete, lap_times):
+            self.evaluations.append(list(lap_times))
+        else:
+            self.evaluations = []
+        return len(self.evaluations) >= self.needed
+
+
+class UntilGoal(TrainingHooks):
+    """Adds each iteration to the run and stops training at the setup's goal."""
+
+    def __init__(self, run: Run, lap_limit_s: float | None) -> None:
         self.run = run
-        self.streak: list[list[float]] = []
+        self.streak = Streak(lap_limit_s=lap_limit_s)
 
     def on_iteration(self, result: IterationResult, checkpoint: bytes, rows: list) -> None:
-        run = self.run
-        run.iterations = result.iteration
-        run.steps = result.total_steps
+        run, ev = self.run, result.evaluation
+        run.iterations, run.total_steps = result.iteration, result.total_steps
         run.rollout_s += result.rollout_s
         run.update_s += result.update_s
         run.eval_s += result.eval_s
-        ev = result.evaluation
-        self.streak = self.streak + ev.lap_times if ev.all_laps_complete else []
-        if len(self.streak) >= 3 and run.seconds is None:
-            run.seconds = result.elapsed_s
-            run.lap_times = self.streak[-3:]
-        print(
-            f"  it {result.iteration:3d} t={result.elapsed_s:6.1f}s steps={result.total_steps:6d} "
-            f"train progress {result.train_progress:5.1f}%  eval {ev.mean_progress:5.1f}% "
-            f"{ev.statuses[0] if ev.statuses else ''}",
-            flush=True,
-        )
+        laps = [t for times in ev.lap_times for t in times]
+        if laps:
+            run.best_lap_s = min(laps if run.best_lap_s is None else [*laps, run.best_lap_s])
+        if self.streak.add(ev.all_laps_complete, laps) and run.seconds is None:
+            run.seconds, run.steps = result.elapsed_s, result.total_steps
+            run.qualifying_laps = [list(e) for e in self.streak.evaluations]
+        shown = " ".join(f"{t:.2f}" for t in laps) or (ev.statuses[0] if ev.statuses else "")
+        print(f"    it {result.iteration:3d} t={result.elapsed_s:6.1f}s "
+              f"steps={result.total_steps:6d} train {result.train_progress:5.1f}%  "
+              f"eval {ev.mean_progress:5.1f}%  {shown}", flush=True)  # fmt: skip
 
     def should_stop(self) -> bool:
         return self.run.seconds is not None
 
 
-def track_spec(name: str, scratch: Path) -> EnvSpec:
-    shared = SHARED / f"{name}.npy"
-    if shared.exists():  # a DeepRacer file: import it into a scratch catalogue folder
-        shutil.copy(shared, scratch / shared.name)
-        return EnvSpec(track=name, track_dirs=(str(scratch),), action_space=ACTIONS)
-    return EnvSpec(track=name, action_space=ACTIONS)
+# ------------------------------------------------------------------------------ summaries
+def median_or_none(values: list[float | None]) -> float | None:
+    """The median, or None when any run missed its goal (a median of a partial set would
+    flatter the setup) or there are none."""
+    if not values or any(v is None for v in values):
+        return None
+    return float(statistics.median(values))  # type: ignore[type-var]
 
 
-BENCH_HYPERPARAMETERS = Hyperparameters(
-    batch_size=64, num_epochs=10, lr=3e-4, discount_factor=0.99, num_episodes_between_training=20
-)
-"""The benchmarks' PPO settings (this one and bench_imported.py train with the same)."""
+@dataclass(frozen=True)
+class SetupSummary:
+    median_s: float | None
+    median_steps: float | None
+    lap_s: float | None
+    """Median lap of the qualifying evaluations of every run that reached the goal."""
+    best_lap_s: float | None
+    reached: int
+    runs: int
 
 
-def run_one(track: str, network: str, minutes: float, scratch: Path, seed: int) -> Run:
-    run = Run(track, network)
+def summarise(runs: list[Run]) -> SetupSummary:
+    laps = [t for r in runs for ev in r.qualifying_laps for t in ev]
+    bests = [r.best_lap_s for r in runs if r.best_lap_s is not None]
+    return SetupSummary(
+        median_s=median_or_none([r.seconds for r in runs]),
+        median_steps=median_or_none([None if r.steps is None else float(r.steps) for r in runs]),
+        lap_s=float(statistics.median(laps)) if laps else None,
+        best_lap_s=min(bests) if bests else None,
+        reached=sum(r.seconds is not None for r in runs),
+        runs=len(runs),
+    )
+
+
+def fmt(value: float | None, digits: int = 1) -> str:
+    return "nan" if value is None else f"{value:.{digits}f}"
+
+
+def key_values(defaults: SetupSummary, fast: SetupSummary) -> str:
+    """The last line: medians, laps and the ratio fast / defaults (both from this run)."""
+    bests = [b for b in (defaults.best_lap_s, fast.best_lap_s) if b is not None]
+    ratio = None
+    if defaults.median_s and fast.median_s is not None:
+        ratio = fast.median_s / defaults.median_s
+    return (
+        f"defaults_median_s={fmt(defaults.median_s)} defaults_lap_s={fmt(defaults.lap_s, 2)} "
+        f"fast_median_s={fmt(fast.median_s)} fast_lap_s={fmt(fast.lap_s, 2)} "
+        f"best_lap_s={fmt(min(bests) if bests else None, 2)} ratio={fmt(ratio, 2)}"
+    )
+
+
+def machine() -> str:
+    """CPU model, cores and the load average (1, 5, 15 minutes), for the figures' context."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    return f"{model}, {os.cpu_count()} cores, load average {load}"
+
+
+# ------------------------------------------------------------------------------ running
+def track_spec(track: str, tracks_dir: Path, scratch: Path, preset: Preset) -> EnvSpec:
+    """The env a model created in the wizard drives (its EnvSpec defaults), on ``track``; a
+    DeepRacer track file found in ``tracks_dir`` is imported into a scratch catalogue."""
+    found = tracks_dir / f"{track}.npy"
+    dirs: tuple[str, ...] = ()
+    if found.exists():
+        shutil.copy(found, scratch / found.name)
+        dirs = (str(scratch),)
+    return EnvSpec(track=track, track_dirs=dirs, action_space=preset.actions())
+
+
+def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path) -> Run:
+    run = Run(setup.name, seed)
+    preset = setup.preset
     config = TrainingConfig(
-        spec=track_spec(track, scratch),
-        network=network,
-        hyperparameters=BENCH_HYPERPARAMETERS,
-        max_minutes=minutes,
-        reward_source=REWARD,
+        spec=track_spec(args.track, args.tracks_dir, scratch, preset),
+        algorithm=preset.algorithm,
+        network=preset.network,
+        hyperparameters=preset.hyperparameters,
+        max_minutes=args.minutes,
+        reward_source=example_source(preset.reward_example),
         num_envs=8,
         rollouts=LocalRollouts(num_workers=2),
         seed=seed,
         eval_episodes=1,
-        eval_laps=3,
+        eval_laps=EVAL_LAPS,
         eval_from_start_line=True,
     )
     start = time.monotonic()
-    train(config, UntilThreeCleanEvaluations(run))
+    train(config, UntilGoal(run, setup.lap_limit_s))
     run.wall_s = time.monotonic() - start
     return run
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tracks", nargs="+", default=["racecraft_summit", "reinvent_base"])
-    parser.add_argument("--networks", nargs="+", default=[LEAN, SHALLOW])
-    parser.add_argument("--minutes", type=float, default=6.0)
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
-    runs: list[Run] = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for track in args.tracks:
-            for network in args.networks:
-                print(f"{track} / {network}", flush=True)
-                runs.append(run_one(track, network, args.minutes, Path(tmp), args.seed))
-
-    print()
-    header = (
-        f"{'track':<18}{'network':<36}{'to 3x3 laps':>12}{'iters':>7}{'steps':>8}"
-        f"{'rollout':>9}{'update':>8}{'eval':>7}  lap times of the 3 evaluations (s)"
-    )
-    print(header)
+def print_table(runs: list[Run]) -> None:
+    print(f"{'setup':<10}{'seed':>5}{'to goal':>10}{'steps':>8}{'iters':>7}{'rollout':>9}"
+          f"{'update':>8}{'eval':>7}{'best lap':>10}"
+          "  laps of the qualifying evaluations (s)")  # fmt: skip
     for r in runs:
         took = f"{r.seconds:.1f} s" if r.seconds is not None else f">{r.wall_s:.0f} s"
-        laps = "; ".join(" ".join(f"{t:.2f}" for t in ev) for ev in r.lap_times) or "-"
-        print(f"{r.track:<18}{r.network:<36}{took:>12}{r.iterations:>7}{r.steps:>8}"
-              f"{r.rollout_s:>8.1f}s{r.update_s:>7.1f}s{r.eval_s:>6.1f}s  {laps}")  # fmt: skip
+        steps = str(r.steps) if r.steps is not None else f">{r.total_steps}"
+        laps = "; ".join(" ".join(f"{t:.2f}" for t in ev) for ev in r.qualifying_laps) or "-"
+        print(f"{r.setup:<10}{r.seed:>5}{took:>10}{steps:>8}{r.iterations:>7}"
+              f"{r.rollout_s:>8.1f}s{r.update_s:>7.1f}s{r.eval_s:>6.1f}s"
+              f"{fmt(r.best_lap_s, 2):>10}  {laps}")  # fmt: skip
 
-    def total(network: str) -> float | None:
-        times = [r.seconds for r in runs if r.network == network]
-        return None if not times or None in times else sum(times)  # type: ignore[arg-type]
 
-    lean, cnn3 = total(LEAN), total(SHALLOW)
-    fmt = lambda v: "nan" if v is None else f"{v:.1f}"  # noqa: E731
-    ratio = "nan" if lean is None or cnn3 is None else f"{cnn3 / lean:.2f}"
-    print(f"default_s={fmt(lean)} cnn3_s={fmt(cnn3)} ratio={ratio}")
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per setup")
+    parser.add_argument("--minutes", type=float, default=8.0, help="time limit of one run")
+    parser.add_argument("--lap-limit", type=float, default=10.0, help="fast: slowest lap (s)")
+    parser.add_argument("--setups", nargs="+", choices=("defaults", "fast"),
+                        default=["defaults", "fast"])  # fmt: skip
+    parser.add_argument("--track", default="reinvent_base")
+    parser.add_argument("--tracks-dir", type=Path, default=SHARED)
+    args = parser.parse_args()
+    setups = [
+        Setup("defaults", DEEPRACER_DEFAULTS, None),
+        Setup("fast", RACING, args.lap_limit),
+    ]
+    print(f"machine: {machine()}", flush=True)
+    runs: list[Run] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for setup in (s for s in setups if s.name in args.setups):
+            for seed in range(args.seeds):
+                print(f"{setup.name} ({setup.preset.label}) seed {seed} on {args.track}",
+                      flush=True)  # fmt: skip
+                runs.append(run_one(setup, seed, args, Path(tmp)))
+
+    print()
+    print_table(runs)
+    summaries = {s.name: summarise([r for r in runs if r.setup == s.name]) for s in setups}
+    print()
+    for name, s in summaries.items():
+        if s.runs:
+            print(f"{name}: median {fmt(s.median_s)} s, {fmt(s.median_steps, 0)} steps to the "
+                  f"goal ({s.reached} of {s.runs} seeds reached it), median qualifying lap "
+                  f"{fmt(s.lap_s, 2)} s, best lap {fmt(s.best_lap_s, 2)} s")  # fmt: skip
+    print(f"machine after: {machine()}")
+    print(key_values(summaries["defaults"], summaries["fast"]))
 
 
 if __name__ == "__main__":

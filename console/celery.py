@@ -6,11 +6,14 @@ Queues (see docs/architecture.md): ``training`` (trainers), ``simulation`` (roll
     <app>.tasks.train_*      -> training
     <app>.tasks.simulate_*   -> simulation   (also rollout_*)
     <app>.tasks.evaluate_*   -> evaluation
-    anything else            -> default
+    <app>.tasks.validate_*, replay_*, import_*, export_*   -> interactive
+    anything else            -> default    (the reaper, the league's periodic tasks)
 
 and ``manage.py up`` runs one worker process per queue (console/launcher.py), so a user's
-long jobs never hold the worker that runs the reaper and the web's quick tasks; a simulation
-machine runs ``celery -A console worker -Q simulation``. A task may still pass ``queue=``.
+long jobs never hold the worker that runs the reaper, and a burst of users' validations,
+imports or car exports (``interactive``: work a page is waiting for) never delays the reaper
+that rescues stuck jobs; a simulation machine runs ``celery -A console worker -Q simulation``.
+A task may still pass ``queue=``.
 
 Every task has a soft and a hard time limit (:data:`TIME_LIMITS`; the soft one raises inside
 the task, which then fails its job with a message; the hard one kills the process): a job's
@@ -28,14 +31,19 @@ os.environ.setdefault("DJANGO_SETTINGS_MODULE", "console.settings")
 QUEUE_TRAINING = "training"
 QUEUE_SIMULATION = "simulation"
 QUEUE_EVALUATION = "evaluation"
+QUEUE_INTERACTIVE = "interactive"
 QUEUE_DEFAULT = "default"
-QUEUES = (QUEUE_TRAINING, QUEUE_SIMULATION, QUEUE_EVALUATION, QUEUE_DEFAULT)
+QUEUES = (QUEUE_TRAINING, QUEUE_SIMULATION, QUEUE_EVALUATION, QUEUE_INTERACTIVE, QUEUE_DEFAULT)
 
 TASK_ROUTES = {
     "*.tasks.train_*": {"queue": QUEUE_TRAINING},
     "*.tasks.simulate_*": {"queue": QUEUE_SIMULATION},
     "*.tasks.rollout_*": {"queue": QUEUE_SIMULATION},
     "*.tasks.evaluate_*": {"queue": QUEUE_EVALUATION},
+    "*.tasks.validate_*": {"queue": QUEUE_INTERACTIVE},
+    "*.tasks.replay_*": {"queue": QUEUE_INTERACTIVE},
+    "*.tasks.import_*": {"queue": QUEUE_INTERACTIVE},
+    "*.tasks.export_*": {"queue": QUEUE_INTERACTIVE},
 }
 
 
@@ -48,6 +56,7 @@ def time_limits(job_s: int, evaluation_s: int, quick_s: int) -> dict[str, dict[s
     return {
         "training.tasks.train_model": pair(job_s),
         "training.tasks.simulate_rollout": pair(job_s),
+        "training.tasks.simulate_episodes": pair(job_s),
         "training.tasks.evaluate_model": pair(evaluation_s),
         "training.tasks.reap_orphans": pair(min(quick_s, 120)),
         "*": pair(quick_s),

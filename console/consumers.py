@@ -9,7 +9,8 @@ messages as JSON:
 - ``{"type": "snapshot", "status", ...}`` first: the chart so far (training) or the laps
   done (evaluation), so that a viewer who joins late misses nothing;
 - ``{"type": "metrics", "point"}``, one reward-graph point per iteration;
-- ``{"type": "frame", "camera", "chase"}``, base64 JPEGs;
+- ``{"type": "frame", "camera", "chase"}``, base64 JPEGs, and when the worker says so
+  ``phase`` ("training" or "evaluation"), ``iteration``, ``version`` (the policy's) and ``lap``;
 - ``{"type": "status", "status"[, "results"]}`` and ``{"type": "progress", "laps_done"}``.
 """
 
@@ -31,6 +32,8 @@ NOT_FOUND = 4404
 
 WATCH_EVERY_S = 10.0
 """How often a connected viewer renews the watch mark (its TTL is live.WATCH_TTL_S)."""
+FRAME_CONTEXT = ("phase", "iteration", "version", "lap")
+"""What a worker may say about a frame (:class:`training.live.FramePublisher`)."""
 
 
 class JobConsumer(AsyncJsonWebsocketConsumer):
@@ -87,9 +90,12 @@ class JobConsumer(AsyncJsonWebsocketConsumer):
         await self.send_json({"type": "metrics", "point": event.get("point")})
 
     async def job_frame(self, event: dict) -> None:
-        await self.send_json(
-            {"type": "frame", "camera": event.get("camera"), "chase": event.get("chase")}
-        )
+        message = {"type": "frame", "camera": event.get("camera"), "chase": event.get("chase")}
+        # What the frame shows (streamed training), for the page's caption over the video.
+        for key in FRAME_CONTEXT:
+            if isinstance(event.get(key), str | int):
+                message[key] = event[key]
+        await self.send_json(message)
 
     async def job_status(self, event: dict) -> None:
         message = {"type": "status", "status": event.get("status")}

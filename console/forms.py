@@ -11,8 +11,10 @@ from django.contrib.auth.forms import UserCreationForm
 from django.core.validators import RegexValidator
 
 from console import tracks
+from console.race_form import RaceSettingsForm
+from training.errors import ServiceError
 from training.interchange.archive import ImportLimits
-from training.models import MODEL_NAME_RE, Direction
+from training.models import MODEL_NAME_RE, Direction, RaceType
 
 MAX_IMPORT_BYTES = ImportLimits().max_upload_bytes
 """Largest model archive accepted: the reader's own limit, so the form and it agree."""
@@ -125,9 +127,14 @@ class RewardForm(forms.Form):
     )
 
 
-class EvaluateForm(forms.Form):
+class EvaluateForm(RaceSettingsForm):
+    """Where and how to evaluate: track, race (with its boxes or bots), laps, penalties."""
+
     track_id = forms.ChoiceField(label="Track")
     direction = forms.ChoiceField(choices=Direction.choices, initial=Direction.NATIVE)
+    race_type = forms.ChoiceField(
+        choices=[("", "The model's own race"), *RaceType.choices], required=False
+    )
     laps = forms.TypedChoiceField(
         label="Number of trials", choices=[(n, n) for n in (3, 4, 5)], coerce=int, initial=3
     )
@@ -141,6 +148,16 @@ class EvaluateForm(forms.Form):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.fields["track_id"].choices = _track_choices()
+
+    def clean(self) -> dict[str, Any]:
+        data = super().clean()
+        data["race_config"] = None  # no race type: the model's own race and settings
+        if data.get("race_type"):
+            try:
+                data["race_config"] = self.race_config(data)
+            except ServiceError as exc:
+                add_service_error(self, exc.message, exc.field)
+        return data
 
 
 def add_service_error(form: forms.Form, message: str, field: str | None) -> None:

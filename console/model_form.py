@@ -16,6 +16,7 @@ from django.core.validators import RegexValidator
 
 from console import tracks
 from console.forms import add_service_error
+from console.race_form import RaceSettingsForm
 from racing.actions import (
     DEFAULT_DISCRETE,
     MAX_DISCRETE_ACTIONS,
@@ -27,7 +28,7 @@ from racing.actions import (
     discrete_action_list,
 )
 from training import services
-from training.models import MODEL_NAME_RE, Direction, RaceType
+from training.models import MODEL_NAME_RE, Direction
 from training.rewards.examples import example_source
 from training.rl.hyperparams import (
     BATCH_SIZES,
@@ -39,8 +40,15 @@ from training.rl.hyperparams import (
     parse_hyperparameters,
 )
 from training.rl.policies import LEAN, NETWORK_LABELS
+from training.rl.presets import DEFAULT_PRESET, PRESETS, Preset, UnknownPreset, preset
 
 SENSORS = [("FRONT_FACING_CAMERA", "Camera"), ("STEREO_CAMERAS", "Stereo camera")]
+LIDARS = [
+    ("", "No LIDAR"),
+    ("LIDAR", "LIDAR (64 ranges)"),
+    ("SECTOR_LIDAR", "Sector LIDAR (8 sectors)"),
+    ("DISCRETIZED_SECTOR_LIDAR", "Discretized sector LIDAR (8 × 8)"),
+]
 ALGORITHMS = [("clipped_ppo", "PPO"), ("sac", "SAC")]
 ACTION_SPACE_TYPES = [("discrete", "Discrete"), ("continuous", "Continuous")]
 HP_FIELDS = (
@@ -80,7 +88,33 @@ def _float(label: str, low: float, high: float, initial: float, **kw: Any) -> fo
     return forms.FloatField(label=label, min_value=low, max_value=high, initial=initial, **kw)
 
 
-class ModelCreateForm(forms.Form):
+def preset_initial(chosen: Preset) -> dict[str, Any]:
+    """The form's values for a preset: action space, algorithm, network, hyperparameters and
+    reward function (what the wizard's "Start from" fills in)."""
+    hp = chosen.hyperparameters
+    return {
+        "start_from": chosen.id,
+        "action_space_type": "discrete",
+        "algorithm": chosen.algorithm,
+        "neural_network": chosen.network,
+        **{key: getattr(hp, key) for key in HP_FIELDS},
+        "reward_function": example_source(chosen.reward_example),
+    }
+
+
+def preset_rows(chosen: Preset) -> list[tuple[str, str]]:
+    """The preset's action table as the form keeps it (typed strings)."""
+    return [(f"{a['steering_angle']:g}", f"{a['speed']:g}") for a in chosen.action_space]
+
+
+class ModelCreateForm(RaceSettingsForm):
+    start_from = forms.ChoiceField(
+        label="Start from",
+        choices=[(p.id, p.label) for p in PRESETS],
+        initial=DEFAULT_PRESET,
+        required=False,
+        help_text="Fills the action space, hyperparameters and reward function; change any.",
+    )
     name = forms.CharField(
         max_length=64,
         validators=[RegexValidator(MODEL_NAME_RE, "Use 1-64 letters, digits or hyphens.")],
@@ -91,8 +125,17 @@ class ModelCreateForm(forms.Form):
     )
     track_id = forms.ChoiceField(label="Track", error_messages={"required": "Choose a track."})
     direction = forms.ChoiceField(choices=Direction.choices, initial=Direction.NATIVE)
-    race_type = forms.ChoiceField(choices=RaceType.choices, initial=RaceType.TIME_TRIAL)
+    extra_track_ids = forms.MultipleChoiceField(
+        label="Also train on",
+        required=False,
+        widget=forms.CheckboxSelectMultiple,
+        help_text=(
+            "Multi-track training: one model learns several tracks at once, the cars dealt "
+            "the tracks in turn, each in the direction above."
+        ),
+    )
     sensor = forms.ChoiceField(choices=SENSORS, initial="FRONT_FACING_CAMERA")
+    lidar = forms.ChoiceField(choices=LIDARS, initial="", required=False, label="LIDAR")
     action_space_type = forms.ChoiceField(choices=ACTION_SPACE_TYPES, initial="discrete")
     action_space = forms.CharField(required=False, widget=forms.HiddenInput)  # carries errors
     gen_max_steering = forms.FloatField(label="Maximum steering angle (°)", min_value=1,
@@ -143,6 +186,7 @@ class ModelCreateForm(forms.Form):
         super().__init__(*args, **kwargs)
         choices = [(r.info.id, r.info.name) for r in tracks.track_rows()]
         self.fields["track_id"].choices = choices
+        self.fields["extra_track_ids"].choices = choices
         if choices:
             self.fields["track_id"].initial = choices[0][0]
         for key in HP_FIELDS:
@@ -211,8 +255,10 @@ class ModelCreateForm(forms.Form):
         """The form's own checks (fields, the table's rows); the domain's rules come from
         the services, shown on the field they name."""
         data = super().clean()
+        if data.get("sensor"):
+            data["sensors"] = [data["sensor"], *([data["lidar"]] if data.get("lidar") else [])]
         if data.get("race_type"):
-            self._service_check(lambda: services.check_race_type(data["race_type"]))
+            self._service_check(lambda: self._race(data))
         kind = data.get("action_space_type")
         if kind == "discrete":
             data["actions"] = self._discrete_actions()
@@ -225,15 +271,29 @@ class ModelCreateForm(forms.Form):
             except HyperparameterError as exc:
                 field = exc.field if exc.field in self.fields else None
                 self.add_error(field, str(exc).split(": ", 1)[-1].capitalize())
+        if data.get("track_id") and data.get("direction") and "extra_track_ids" not in self.errors:
+            extra = [[t, data["direction"]] for t in data.get("extra_track_ids") or ()
+                     if t != data["track_id"]]  # fmt: skip
+            try:
+                data["extra_tracks"] = services.check_extra_tracks(
+                    data["track_id"], data["direction"], extra
+                )
+            except services.ServiceError as exc:
+                add_service_error(self, exc.message, "extra_track_ids")
         if data.get("actions") is not None and "hyperparameters" in data and not self.errors:
             self._service_check(lambda: services.check_model_spec(
                 track_id=data["track_id"], direction=data["direction"],
-                race_type=data["race_type"], sensors=[data["sensor"]],
+                race_type=data["race_type"], race_config=data.get("race_config"),
+                sensors=data["sensors"],
                 action_space=data["actions"], algorithm=data["algorithm"],
                 neural_network=data["neural_network"],
                 hyperparameters=data["hyperparameters"], max_minutes=data["max_minutes"],
             ))  # fmt: skip
         return data
+
+    def _race(self, data: dict) -> None:
+        """``race_config``: the race settings the services accept for the race type."""
+        data["race_config"] = self.race_config(data)
 
     def _service_check(self, check: Callable[[], object]) -> None:
         try:
@@ -248,6 +308,25 @@ class ModelCreateForm(forms.Form):
             for key in PPO_ONLY:
                 hp.pop(key, None)
         return hp
+
+    # ---- the presets
+    @classmethod
+    def from_preset(cls, data: Any) -> ModelCreateForm:
+        """An unbound form with what was typed, the chosen preset's values over it: the
+        "Start from" button posts the form back and lands here. An unknown preset leaves the
+        form as typed, with the error on ``start_from``."""
+        typed = cls(data)
+        try:
+            chosen = preset(str(data.get("start_from", "")))
+        except UnknownPreset as exc:
+            form = cls(initial=data.dict(), action_rows=typed.action_rows)
+            form.preset_error = str(exc).capitalize() + "."
+            return form
+        initial = {**data.dict(), **preset_initial(chosen)}
+        return cls(initial=initial, action_rows=preset_rows(chosen))
+
+    preset_error = ""
+    presets = PRESETS
 
     # ---- the generator
     def generated_rows(self) -> tuple[list[tuple[str, str]], str]:

@@ -37,6 +37,19 @@ def channel_layers(redis_url: str, prefix: str) -> dict[str, Any]:
     }
 
 
+def cache_settings(redis_url: str, prefix: str) -> dict[str, Any]:
+    """The CACHES setting: Django's Redis cache on ``redis_url``, keys under ``prefix``. The
+    throttles (django-ratelimit) count in this cache, so every web process shares one count:
+    a per-process cache would let each of N processes allow the full rate."""
+    return {
+        "default": {
+            "BACKEND": "django.core.cache.backends.redis.RedisCache",
+            "LOCATION": redis_url,
+            "KEY_PREFIX": f"{prefix}cache",
+        }
+    }
+
+
 def celery_settings(redis_url: str, prefix: str) -> dict[str, Any]:
     """The CELERY_* settings that depend on Redis, every key under ``prefix``."""
     url = celery_url(redis_url)

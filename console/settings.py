@@ -16,7 +16,7 @@ from celery.schedules import crontab
 from django.core.exceptions import ImproperlyConfigured
 
 from console.env import envbool, envint, envlist, envstr
-from console.redisconf import celery_settings, channel_layers
+from console.redisconf import cache_settings, celery_settings, channel_layers
 from training.storage import DEFAULT_BUCKET, StoreError, check_bucket_name
 
 BASE_DIR = Path(__file__).resolve().parent.parent
@@ -174,6 +174,8 @@ REDIS_URL = envstr("REDIS_URL") or f"unix://{EMBEDDED_REDIS_SOCKET}?db=0"
 REDIS_PREFIX = envstr("REDIS_PREFIX")
 
 CHANNEL_LAYERS = channel_layers(REDIS_URL, REDIS_PREFIX)
+# The throttles' counts (django-ratelimit) and any cached value: one Redis for every process.
+CACHES = cache_settings(REDIS_URL, REDIS_PREFIX)
 
 # Celery (read by console/celery.py with the CELERY_ namespace).
 _celery = celery_settings(REDIS_URL, REDIS_PREFIX)
@@ -207,6 +209,9 @@ CELERY_WORKER_CONCURRENCY = envint("CELERY_WORKER_CONCURRENCY", 2, minimum=1)
 # simulation when RACECRAFT_REMOTE_ROLLOUT_SLOTS > 0; job workers at this added niceness.
 RACECRAFT_EVALUATION_CONCURRENCY = envint("RACECRAFT_EVALUATION_CONCURRENCY", 1, minimum=1)
 RACECRAFT_QUICK_CONCURRENCY = envint("RACECRAFT_QUICK_CONCURRENCY", 2, minimum=1)
+# Processes of the worker for what users' pages wait for (queue `interactive`: reward
+# validations and replays, model imports, car exports), apart from the reaper's.
+RACECRAFT_INTERACTIVE_CONCURRENCY = envint("RACECRAFT_INTERACTIVE_CONCURRENCY", 2, minimum=1)
 RACECRAFT_WORKER_NICE = envint("RACECRAFT_WORKER_NICE", 10, minimum=0)
 # Periodic tasks (celery beat): the league's month-end promotion (daily, idempotent: catches
 # up a missed night) and its safety net for results whose signal was missed.
@@ -222,6 +227,10 @@ CELERY_BEAT_SCHEDULE = {
     "training-reap-orphans": {
         "task": "training.tasks.reap_orphans",
         "schedule": 120.0,
+    },
+    "training-prune-uploads": {
+        "task": "training.tasks.prune_uploads",
+        "schedule": 3600.0,
     },
 }
 
@@ -245,6 +254,18 @@ RACECRAFT_STORE_WORKER_RETRY_S = envint("RACECRAFT_STORE_WORKER_RETRY_S", 180, m
 
 # Training: rollouts on this machine (0) or on that many `-Q simulation` workers elsewhere.
 RACECRAFT_REMOTE_ROLLOUT_SLOTS = envint("RACECRAFT_REMOTE_ROLLOUT_SLOTS", 0, minimum=0)
+# The trainer's torch device: auto (the GPU when the training worker has one, else the CPU),
+# cpu, cuda, cuda:<n>, mps. Checked for spelling here; for the GPU itself on the worker.
+RACECRAFT_TORCH_DEVICE = envstr("RACECRAFT_TORCH_DEVICE", "auto").strip().lower()
+if not re.fullmatch(r"auto|cpu|cuda(:\d+)?|mps|xpu(:\d+)?", RACECRAFT_TORCH_DEVICE):
+    raise ImproperlyConfigured(
+        f"RACECRAFT_TORCH_DEVICE={RACECRAFT_TORCH_DEVICE!r}: use auto, cpu, cuda, cuda:<n> or mps"
+    )
+# "streams": simulation workers own their episodes and stream them through Redis (issue 14);
+# "lockstep": the trainer steps the envs.
+RACECRAFT_SIMULATION = envstr("RACECRAFT_SIMULATION", "lockstep")
+if RACECRAFT_SIMULATION not in ("streams", "lockstep"):
+    raise ImproperlyConfigured("RACECRAFT_SIMULATION must be streams or lockstep")
 RACECRAFT_MAX_MODELS_PER_USER = envint("RACECRAFT_MAX_MODELS_PER_USER", 50, minimum=1)
 RACECRAFT_MAX_ACTIVE_JOBS_PER_USER = envint("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER", 2, minimum=1)
 # A job whose worker died is queued again (training resumes from its last checkpoint) until
@@ -259,6 +280,9 @@ RACECRAFT_ALLOW_WEAK_SANDBOX = envbool("RACECRAFT_ALLOW_WEAK_SANDBOX", False)
 # Reward validations run as Celery tasks; per user: at once, and started per minute.
 RACECRAFT_VALIDATIONS_PER_USER = envint("RACECRAFT_VALIDATIONS_PER_USER", 2, minimum=1)
 RACECRAFT_VALIDATIONS_PER_MINUTE = envint("RACECRAFT_VALIDATIONS_PER_MINUTE", 10, minimum=1)
+# Model imports and car exports (Celery tasks on the `interactive` queue) a user may have
+# queued or running at once.
+RACECRAFT_BACKGROUND_TASKS_PER_USER = envint("RACECRAFT_BACKGROUND_TASKS_PER_USER", 2, minimum=1)
 # Sign-up and log-in POSTs per address (log-in also per user name): django-ratelimit rates.
 RACECRAFT_LOGIN_RATE = envstr("RACECRAFT_LOGIN_RATE", "10/m")
 RACECRAFT_SIGNUP_RATE = envstr("RACECRAFT_SIGNUP_RATE", "5/h")

@@ -4,8 +4,8 @@ window answer 429 before the view runs, so passwords cannot be guessed at speed 
 accounts made in bulk.
 
 Rates are django-ratelimit's ``"N/period"`` strings from settings (RACECRAFT_LOGIN_RATE,
-RACECRAFT_SIGNUP_RATE). Counts live in Django's default cache: per process with the default
-local-memory cache, shared when CACHES points at Redis.
+RACECRAFT_SIGNUP_RATE). Counts live in Django's default cache, which settings point at Redis
+(console/redisconf.py ``cache_settings``), so every web process shares one count.
 """
 
 from __future__ import annotations

@@ -93,6 +93,7 @@ urlpatterns = [
         name="evaluation-video",
     ),
     path("api/reward/validate", api.reward_validate, name="reward-validate"),
+    path("api/tasks/<str:task_id>", api.background_task, name="background-task"),
     path("api/openapi.json", api.openapi_schema, name="openapi-schema"),
     path("league/", include("leaderboard.urls")),
     path("admin/", admin.site.urls),

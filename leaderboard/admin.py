@@ -54,7 +54,7 @@ class EventAdmin(admin.ModelAdmin):
         ("Rules", {"fields": ("ranking_method", "min_laps", "max_laps", "off_track_penalty_s",
                               "collision_penalty_s", "max_resets",
                               "max_submissions_per_racer")}),
-        ("Object avoidance and head-to-bot (stored for later)", {
+        ("Object avoidance and head-to-bot", {
             "classes": ("collapse",),
             "fields": ("number_of_objects", "randomize_objects", "bot_count", "bot_speed_mps",
                        "bot_lane_changes"),

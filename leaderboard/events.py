@@ -13,7 +13,7 @@ from leaderboard.access import LeagueError, can_manage_event, is_entrant, is_fac
 from leaderboard.divisions import division_for
 from leaderboard.models import Division, Event, EventEntrant, RankingMethod, new_invite_token
 from training.models import RaceType
-from training.services import ServiceError, check_track
+from training.services import ServiceError, check_track, race_settings
 
 EVENT_FIELDS = (
     "season", "name", "description", "track_id", "direction", "race_type", "number_of_objects",
@@ -23,9 +23,38 @@ EVENT_FIELDS = (
 )  # fmt: skip
 RULE_FIELDS = (
     "track_id", "direction", "race_type", "ranking_method", "min_laps", "max_laps",
-    "off_track_penalty_s", "collision_penalty_s", "max_resets",
+    "off_track_penalty_s", "collision_penalty_s", "max_resets", "number_of_objects",
+    "randomize_objects", "bot_count", "bot_speed_mps", "bot_lane_changes",
 )  # fmt: skip
 """What decides a score: fixed once the first submission is in."""
+
+
+RACE_FIELDS = {
+    "number_of_objects": "number_of_objects",
+    "object_positions": "number_of_objects",
+    "number_of_bots": "bot_count",
+    "bot_speed": "bot_speed_mps",
+    "lane_change_min_s": "bot_lane_changes",
+}
+"""Where the race rules' complaints go on an event's form."""
+
+
+def event_race(event: Event) -> dict[str, Any]:
+    """The event's race settings as an evaluation takes them (``race_config``): {} for a time
+    trial, the boxes of an object-avoidance race or the bots of a head-to-bot race, checked by
+    the race rules (:func:`training.services.race_settings`). Raises :class:`LeagueError`."""
+    settings: dict[str, Any] = {}
+    if event.race_type == RaceType.OBJECT_AVOIDANCE:
+        settings = {"number_of_objects": event.number_of_objects,
+                    "randomize_objects": event.randomize_objects}  # fmt: skip
+    elif event.race_type == RaceType.HEAD_TO_BOT:
+        settings = {"number_of_bots": event.bot_count, "bot_speed": event.bot_speed_mps,
+                    "bot_lane_change": event.bot_lane_changes}  # fmt: skip
+    try:
+        return race_settings(event.race_type, settings)
+    except ServiceError as exc:
+        field = RACE_FIELDS.get(exc.field or "", "race_type")
+        raise LeagueError(exc.message, field=field) from None
 
 
 def _check_event(event: Event) -> None:
@@ -37,6 +66,7 @@ def _check_event(event: Event) -> None:
         raise LeagueError(exc.message, field=exc.field) from None
     if event.race_type not in RaceType.values:
         raise LeagueError("unknown race type", field="race_type")
+    event_race(event)
     if event.ranking_method not in RankingMethod.values:
         raise LeagueError("unknown ranking method", field="ranking_method")
     if not 1 <= event.min_laps <= event.max_laps <= 5:
@@ -173,11 +203,6 @@ def event_entry_check(*, event: Event, user, now: datetime | None = None) -> Non
         raise LeagueError(f"this event opens on {event.opens_at:%Y-%m-%d %H:%M} UTC")
     if event.is_closed(now):
         raise LeagueError("this event has closed: no more submissions")
-    if event.race_type != RaceType.TIME_TRIAL:
-        raise LeagueError(
-            f"{RaceType(event.race_type).label} races need obstacles and bots, which the "
-            "simulator does not have yet"
-        )
     if event.is_private:
         if not (is_entrant(user, event) or event.organiser_id == user.pk):
             raise LeagueError("this is a private race: open its invite link to join first")

@@ -40,7 +40,7 @@ class EventForm(forms.Form):
     race_type = forms.ChoiceField(
         choices=RaceType.choices,
         initial=RaceType.TIME_TRIAL,
-        help_text="Only time trials run today; the other settings are kept for later.",
+        help_text="Object avoidance uses the box settings, head-to-bot the bot settings.",
     )
     opens_at = forms.DateTimeField(
         label="Opens (UTC)", widget=DateTimeInput(), input_formats=[DATETIME_FORMAT]
@@ -71,9 +71,13 @@ class EventForm(forms.Form):
     max_submissions_per_racer = forms.IntegerField(
         label="Submissions per racer", min_value=1, max_value=999, initial=99
     )
-    number_of_objects = forms.IntegerField(min_value=0, max_value=12, initial=0)
-    randomize_objects = forms.BooleanField(required=False)
-    bot_count = forms.IntegerField(min_value=0, max_value=6, initial=0)
+    number_of_objects = forms.IntegerField(
+        label="Number of boxes", min_value=0, max_value=6, initial=0,
+        help_text="Object avoidance: 1 to 6.",
+    )  # fmt: skip
+    randomize_objects = forms.BooleanField(label="Place boxes at random", required=False)
+    bot_count = forms.IntegerField(label="Number of bot cars", min_value=0, max_value=6,
+                                   initial=0, help_text="Head-to-bot: 1 to 6.")  # fmt: skip
     bot_speed_mps = forms.FloatField(label="Bot speed (m/s)", min_value=0.2, max_value=6.0,
                                      initial=1.0)  # fmt: skip
     bot_lane_changes = forms.BooleanField(required=False)

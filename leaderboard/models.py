@@ -54,8 +54,8 @@ class Event(models.Model):
     """A race: a track and rules, open between two instants, for one division.
 
     A private event is a community race: reachable only through ``/league/join/<invite_token>/``
-    until it closes; the division rule does not apply to it. Object-avoidance and head-to-bot
-    settings are stored for when the simulator has obstacles and bots; only time trials run.
+    until it closes; the division rule does not apply to it. Object-avoidance races use the
+    box settings, head-to-bot races the bot settings (``leaderboard.events.event_race``).
     """
 
     season = models.ForeignKey(
@@ -68,12 +68,12 @@ class Event(models.Model):
     race_type = models.CharField(
         max_length=20, choices=RaceType.choices, default=RaceType.TIME_TRIAL
     )
-    # Object avoidance (stored for later).
+    # Object avoidance.
     number_of_objects = models.PositiveSmallIntegerField(
         default=0, validators=[MaxValueValidator(12)]
     )
     randomize_objects = models.BooleanField(default=False)
-    # Head-to-bot (stored for later).
+    # Head-to-bot.
     bot_count = models.PositiveSmallIntegerField(default=0, validators=[MaxValueValidator(6)])
     bot_speed_mps = models.FloatField(
         default=1.0, validators=[MinValueValidator(0.2), MaxValueValidator(6.0)]

@@ -14,7 +14,7 @@ from django.utils import timezone
 
 from leaderboard import ranking
 from leaderboard.access import LeagueError
-from leaderboard.events import event_entry_check
+from leaderboard.events import event_entry_check, event_race
 from leaderboard.live import broadcast_result
 from leaderboard.models import Event, RacerProfile, Submission
 from leaderboard.profiles import profile_for
@@ -26,7 +26,9 @@ log = logging.getLogger(__name__)
 
 def submission_create(*, event: Event, user, model: RacingModel) -> Submission:
     """Submit the racer's READY model to an open event: an evaluation under the event's rules
-    (its track, direction, laps and penalties) on the evaluation queue.
+    (its track, direction, race with its boxes or bots, laps and penalties: an off track or a
+    collision freezes the car for the penalty and respawns it, so lap times include them) on
+    the evaluation queue.
 
     Refused (LeagueError) when the event is not open or not for this racer, the racer has no
     alias yet, the model is not theirs or not ready, a submission of theirs to this event is
@@ -66,6 +68,7 @@ def submission_create(*, event: Event, user, model: RacingModel) -> Submission:
                 track_id=event.track_id,
                 direction=event.direction,
                 race_type=event.race_type,
+                race_config=event_race(event),
                 laps=event.evaluation_laps,
                 off_track_penalty_s=event.off_track_penalty_s,
                 crash_penalty_s=event.collision_penalty_s,

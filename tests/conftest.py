@@ -18,10 +18,11 @@ import pytest
 import redis
 from channels.layers import channel_layers
 from django.conf import settings
+from django.test import override_settings
 
 from console.celery import app as celery_app
 from console.launcher import EmbeddedRedis, Supervisor
-from console.redisconf import celery_settings
+from console.redisconf import cache_settings, celery_settings
 from console.redisconf import channel_layers as channel_layers_setting
 
 # The real servers (Celery worker, daphne, moto S3, Chromium) for every test package.
@@ -38,6 +39,26 @@ def _delete_prefixed(url: str, prefix: str) -> None:
             client.delete(*keys)
     finally:
         client.close()
+
+
+def clear_cache() -> None:
+    """Empty Django's cache (the throttles' counts): only this run's cache keys. Django's own
+    ``cache.clear()`` on Redis is FLUSHDB, which would also drop the queues and every other
+    run's keys on a shared Redis."""
+    # settings' prefix, not REDIS_PREFIX: a test module that imports this file as
+    # ``tests.conftest`` gets a module of its own, with another random prefix.
+    _delete_prefixed(settings.REDIS_URL, f"{settings.REDIS_PREFIX}cache:")
+
+
+@pytest.fixture(autouse=True)
+def _no_per_user_state_between_tests() -> Iterator[None]:
+    """Passed validations and the per-user counts of validations, imports and exports live
+    in Redis under user ids, which the next test's users reuse, and the throttles count per
+    address (every test client is 127.0.0.1): forget them all after each test."""
+    yield
+    clear_cache()
+    for room in ("reward-validation", "background"):
+        _delete_prefixed(settings.REDIS_URL, f"{settings.REDIS_PREFIX}racecraft:{room}:")
 
 
 @pytest.fixture(scope="session")
@@ -64,7 +85,8 @@ def redis_env(redis_url: str) -> dict[str, str]:
 
 @pytest.fixture(scope="session", autouse=True)
 def _redis_settings(redis_url: str) -> Iterator[None]:
-    """Point Django settings, the Celery app and the channel layer at the tests' Redis.
+    """Point Django settings, the Celery app, the channel layer and the cache at the tests'
+    Redis.
 
     pytest-django loads the settings before any fixture runs, so the values computed from the
     environment are replaced here, with the same helpers the settings module uses.
@@ -86,7 +108,11 @@ def _redis_settings(redis_url: str) -> Iterator[None]:
         result_backend_transport_options=celery["CELERY_RESULT_BACKEND_TRANSPORT_OPTIONS"],
     )
     channel_layers.backends.clear()
+    # Through override_settings, whose signal makes Django open the cache anew.
+    shared_cache = override_settings(CACHES=cache_settings(redis_url, REDIS_PREFIX))
+    shared_cache.enable()
     yield
+    shared_cache.disable()
     channel_layers.backends.clear()
     for name, value in saved.items():
         setattr(settings, name, value)

@@ -205,12 +205,13 @@ def child_env(store_dir: Path, redis_env: dict[str, str], settings) -> dict[str,
 
 @pytest.fixture
 def celery_worker(child_env: dict[str, str], tmp_path: Path) -> Iterator[ChildProcess]:
-    """A real worker on the training, evaluation and default queues (one process at a time).
+    """A real worker on the training, evaluation, interactive and default queues (one process
+    at a time).
 
     Its log is ``tmp_path / "worker.log"``.
     """
     with celery_worker_process(
-        queues=["training", "evaluation", "default"],
+        queues=["training", "evaluation", "interactive", "default"],
         env=child_env,
         log_path=tmp_path / "worker.log",
     ) as worker:
@@ -269,3 +270,34 @@ def s3_endpoint() -> Iterator[str]:
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
+
+
+def train_in_thread(job, user, *, iterations: int, within_s: float):
+    """Run a queued training job in a thread of this process, as ``racecraft_train`` does, and
+    stop it once it has ``iterations`` updates (a stop request: however loaded the machine,
+    never the time limit), or after ``within_s`` seconds. Returns the job as it ended."""
+    import threading
+
+    from django.db import connections
+
+    from training import services
+    from training.models import TrainingJob
+    from training.worker.training import run_training_job
+
+    def body() -> None:
+        try:
+            run_training_job(job.pk, "test")
+        finally:
+            connections.close_all()
+
+    thread = threading.Thread(target=body, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + within_s
+    while time.monotonic() < deadline and thread.is_alive():
+        if TrainingJob.objects.get(pk=job.pk).iterations >= iterations:
+            break
+        time.sleep(0.5)
+    services.job_stop(job=TrainingJob.objects.get(pk=job.pk), user=user)
+    thread.join(timeout=300)
+    assert not thread.is_alive(), "the training job did not stop"
+    return TrainingJob.objects.get(pk=job.pk)

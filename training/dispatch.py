@@ -21,6 +21,8 @@ EVALUATE_MODEL = "training.tasks.evaluate_model"
 SIMULATE_ROLLOUT = "training.tasks.simulate_rollout"
 REPLAY_REWARD = "training.tasks.replay_reward"
 VALIDATE_REWARD = "training.tasks.validate_reward"
+IMPORT_MODEL = "training.tasks.import_model"
+EXPORT_CAR_MODEL = "training.tasks.export_car_model"
 JOB_QUEUES = ("training", "evaluation")
 """Queues whose tasks carry jobs (see console/celery.py's routes)."""
 

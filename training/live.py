@@ -87,6 +87,11 @@ class FramePublisher:
             "chase": base64.b64encode(bytes(frame["chase"])).decode(),
             "progress": frame.get("progress"),
         }
+        # What is happening (streamed training): "training" episode or "evaluation" lap, the
+        # iteration and the policy version driving, for the page's overlay.
+        for key in ("phase", "iteration", "version", "lap"):
+            if frame.get(key) is not None:
+                message[key] = frame[key]
         try:
             self._queue.put_nowait(message)
         except queue.Full:

@@ -45,9 +45,14 @@ class RacingModel(models.Model):
     description = models.CharField(max_length=255, blank=True)
     track_id = models.CharField(max_length=64)
     direction = models.CharField(max_length=8, choices=Direction.choices, default=Direction.NATIVE)
+    extra_tracks = models.JSONField(default=list, blank=True)
+    """Multi-track training: more ``[track_id, direction]`` pairs trained on beside
+    ``track_id``/``direction`` (the cars are dealt the tracks in turn); empty: one track."""
     race_type = models.CharField(
         max_length=20, choices=RaceType.choices, default=RaceType.TIME_TRIAL
     )
+    race_config = models.JSONField(default=dict, blank=True)
+    """The race's boxes or bots (``racing.race.RaceConfig.to_dict()``); {} in a time trial."""
     sensors = models.JSONField(default=list)
     neural_network = models.CharField(max_length=64)
     action_space_type = models.CharField(max_length=12)
@@ -91,6 +96,11 @@ class RacingModel(models.Model):
     def store_folder(self) -> str:
         """The folder name in the store: ``store_prefix``, or the id for older models."""
         return self.store_prefix or str(self.pk)
+
+    @property
+    def training_tracks(self) -> list[tuple[str, str]]:
+        """Every ``(track_id, direction)`` the model trains on, its own track first."""
+        return [(self.track_id, self.direction), *((t, d) for t, d in self.extra_tracks)]
 
     @property
     def is_busy(self) -> bool:
@@ -233,6 +243,8 @@ class EpisodeMetric(models.Model):
     elapsed_time_in_milliseconds = models.PositiveBigIntegerField()
     start_time = models.PositiveBigIntegerField()
     metric_time = models.PositiveBigIntegerField()
+    track = models.CharField(max_length=64, blank=True)
+    """The track the episode was driven on, for a model that trains on several; else blank."""
 
     class Meta:
         ordering = ["job", "pk"]
@@ -249,6 +261,7 @@ class EpisodeMetric(models.Model):
             "phase": self.phase,
             "completion_percentage": self.completion_percentage,
             "episode_status": self.episode_status,
+            **({"track": self.track} if self.track else {}),  # multi-track training
         }
 
 
@@ -261,6 +274,8 @@ class EvaluationJob(Job):
     race_type = models.CharField(
         max_length=20, choices=RaceType.choices, default=RaceType.TIME_TRIAL
     )
+    race_config = models.JSONField(default=dict, blank=True)
+    """The race's boxes or bots (``racing.race.RaceConfig.to_dict()``); {} in a time trial."""
     laps = models.PositiveSmallIntegerField(
         default=3, validators=[MinValueValidator(3), MaxValueValidator(5)]
     )

@@ -38,7 +38,25 @@ _BUCKET_RE = re.compile(r"^[a-z0-9][a-z0-9.-]{1,61}[a-z0-9]$")
 
 
 class StoreError(Exception):
-    """Any failure of the object store (bad key, unreachable server, refused request...)."""
+    """Any failure of the object store (bad key, unreachable server, refused request...).
+
+    The message is for the log: it may name the server and the whole key. What a user may
+    read is :meth:`public_message`: the object's file name and the reason, never an endpoint,
+    a bucket or a folder."""
+
+    def __init__(self, message: str, *, action: str = "", key: str = "", reason: str = "") -> None:
+        super().__init__(message)
+        self.action, self.key, self.reason = action, key, reason
+
+    def public_message(self) -> str:
+        if isinstance(self, StoreUnavailable):
+            return "the model store is unavailable right now; try again in a minute"
+        if self.action and self.key:
+            name = self.key.rstrip("/").rsplit("/", 1)[-1]
+            return f"the model store could not {self.action} {name}" + (
+                f": {self.reason}" if self.reason else ""
+            )
+        return "the model store refused the request"
 
 
 class StoreUnavailable(StoreError):
@@ -50,8 +68,7 @@ class ObjectNotFound(StoreError):
     """The key holds no object; ``key`` names it."""
 
     def __init__(self, key: str) -> None:
-        super().__init__(f"no object at {key!r}")
-        self.key = key
+        super().__init__(f"no object at {key!r}", action="find", key=key, reason="missing")
 
 
 def validate_key(key: str) -> str:
@@ -153,9 +170,15 @@ class LocalStore(ObjectStore):
         except (FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
             if action == "read":
                 raise ObjectNotFound(key) from exc
-            raise StoreError(f"cannot {action} {key!r}: {exc.strerror or exc}") from exc
+            raise StoreError(
+                f"cannot {action} {key!r}: {exc.strerror or exc}",
+                action=action, key=key, reason=exc.strerror or "",
+            ) from exc  # fmt: skip
         except OSError as exc:
-            raise StoreError(f"cannot {action} {key!r}: {exc.strerror or exc}") from exc
+            raise StoreError(
+                f"cannot {action} {key!r}: {exc.strerror or exc}",
+                action=action, key=key, reason=exc.strerror or "",
+            ) from exc  # fmt: skip
 
     def _write_atomic(self, path: Path, write: Any) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -312,12 +335,19 @@ class MinioStore(ObjectStore):
             if exc.code in ("NoSuchKey", "NoSuchObject", "ResourceNotFound"):
                 raise ObjectNotFound(key) from exc
             kind = StoreUnavailable if exc.code in _TRANSIENT_S3_CODES else StoreError
-            raise kind(f"cannot {action} {key!r}: {exc.code}: {exc.message}") from exc
+            raise kind(
+                f"cannot {action} {key!r}: {exc.code}: {exc.message}",
+                action=action, key=key, reason=exc.code,
+            ) from exc  # fmt: skip
         except (MinioException, HTTPError, OSError) as exc:
             # Unreachable, timed out, reset, or a 5xx without an S3 error body.
-            raise StoreUnavailable(f"cannot {action} {key!r} at {self!r}: {exc}") from exc
+            raise StoreUnavailable(
+                f"cannot {action} {key!r} at {self!r}: {exc}", action=action, key=key
+            ) from exc
         except ValueError as exc:
-            raise StoreError(f"cannot {action} {key!r} at {self!r}: {exc}") from exc
+            raise StoreError(
+                f"cannot {action} {key!r} at {self!r}: {exc}", action=action, key=key
+            ) from exc
 
     def put_bytes(self, key: str, data: bytes, content_type: str = OCTET_STREAM) -> None:
         validate_key(key)

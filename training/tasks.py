@@ -1,7 +1,9 @@
 """Celery tasks: thin interfaces that take ids and call the worker and the services.
 
 Queues by name (console/celery.py): ``train_*`` → training, ``evaluate_*`` → evaluation,
-``simulate_*`` → simulation. Services queue these by name (:mod:`training.dispatch`).
+``simulate_*`` → simulation; ``validate_*``, ``replay_*``, ``import_*``, ``export_*`` →
+interactive (what a page waits for); the rest → default. Services queue these by name
+(:mod:`training.dispatch`).
 
 Tasks are acknowledged late and given back to the broker when their worker process dies
 (``acks_late`` + ``reject_on_worker_lost``): the job's claim is a compare-and-set, so a
@@ -19,9 +21,12 @@ from celery.signals import worker_init, worker_process_init, worker_ready
 from django.db import close_old_connections
 
 from training import dispatch, services, store
+from training.rl.simulation import serve_simulation
 from training.rollout.remote import serve_rollout
 from training.services.analysis import replay_run
+from training.services.background import car_export_run, model_import_run, uploads_prune
 from training.services.rewards import reward_validation_run
+from training.worker.common import SIMULATE_EPISODES
 from training.worker.evaluation import run_evaluation_job
 from training.worker.training import run_training_job
 
@@ -45,6 +50,14 @@ def simulate_rollout(**kwargs) -> str:
     return serve_rollout(**kwargs)
 
 
+@shared_task(name=SIMULATE_EPISODES, acks_late=False)
+def simulate_episodes(**kwargs) -> str:
+    """A simulation worker that owns its episodes, for a streamed trainer (queue
+    ``simulation``). Acknowledged early: a dead worker's episodes are the trainer's to give to
+    another worker, never a task to replay."""
+    return serve_simulation(**kwargs)
+
+
 @shared_task(name=dispatch.REPLAY_REWARD)
 def replay_reward(model_id: int, iteration: int, episode: int, source: str) -> dict:
     """A reward replay on a recorded episode (the user's code runs in the sandbox here)."""
@@ -52,10 +65,33 @@ def replay_reward(model_id: int, iteration: int, episode: int, source: str) -> d
 
 
 @shared_task(name=dispatch.VALIDATE_REWARD, acks_late=False, time_limit=600)
-def validate_reward(*, source: str, track_id: str, direction: str) -> dict:
+def validate_reward(*, source: str, track_id: str, direction: str, user_id: int | None = None
+                    ) -> dict:  # fmt: skip
     """Validate a user's reward function here, in a worker, never in the web process
-    (queue ``default``); the sandbox's own deadlines end it well before ``time_limit``."""
-    return reward_validation_run(source=source, track_id=track_id, direction=direction)
+    (queue ``interactive``); the sandbox's own deadlines end it well before ``time_limit``."""
+    return reward_validation_run(
+        source=source, track_id=track_id, direction=direction, user_id=user_id
+    )
+
+
+@shared_task(name=dispatch.IMPORT_MODEL, acks_late=False)
+def import_model(*, owner_id: int, name: str, description: str, upload_key: str) -> dict:
+    """Import an uploaded archive the web stored (queue ``interactive``)."""
+    return model_import_run(
+        owner_id=owner_id, name=name, description=description, upload_key=upload_key
+    )
+
+
+@shared_task(name=dispatch.EXPORT_CAR_MODEL, acks_late=False)
+def export_car_model(*, model_id: int) -> dict:
+    """Build a model's car archive into the store (queue ``interactive``)."""
+    return car_export_run(model_id=model_id)
+
+
+@shared_task(name="training.tasks.prune_uploads")
+def prune_uploads() -> int:
+    """Remove uploads whose import never ran (beat, hourly; queue ``default``)."""
+    return uploads_prune()
 
 
 @shared_task(name="training.tasks.reap_orphans", acks_late=True)

@@ -6,6 +6,7 @@ import json
 from functools import cache
 from pathlib import Path
 
+from django.contrib import messages
 from django.contrib.auth.decorators import login_required
 from django.http import HttpRequest, HttpResponse, JsonResponse
 from django.urls import reverse
@@ -13,7 +14,7 @@ from django.views.decorators.http import require_http_methods, require_safe
 
 from training import services
 from training.sandbox import MAX_SOURCE_CHARS, check_source
-from training.services import rewards
+from training.services import background, rewards
 
 MAX_BODY_BYTES = MAX_SOURCE_CHARS * 4 + 4096
 OPENAPI_PATH = Path(__file__).resolve().parent.parent / "openapi.json"
@@ -34,6 +35,28 @@ def _error(message: str, status: int = 400, field: str | None = None) -> JsonRes
     error = {"type": "REQUEST_ERROR", "message": message, "line": None, "column": None,
              "lineNumber": None, "field": field}  # fmt: skip
     return JsonResponse({"ok": False, "errors": [error]}, status=status)
+
+
+@login_required
+@require_safe
+def background_task(request: HttpRequest, task_id: str) -> JsonResponse:
+    """GET: where the user's import or car export is: ``{status: queued|running}``, then
+    ``{status: done, ok, error?}`` with ``next`` (the imported model's page) or ``download``
+    (the car archive, ready in the store). 404 for an id that is not the user's."""
+    try:
+        status = dict(background.background_status(user_id=request.user.pk, task_id=task_id))
+    except background.TaskNotFound:
+        return JsonResponse({"error": "No such task."}, status=404)
+    if status["status"] == "done" and status.get("ok"):
+        model_id = status["model_id"]
+        if status["kind"] == "import":
+            status["next"] = reverse("model-detail", args=[model_id])
+            messages.success(request, f"Model {status.get('name', '')} imported.")
+            if note := status.get("note"):
+                messages.warning(request, note[:1].upper() + note[1:])
+        else:
+            status["download"] = reverse("model-download", args=[model_id, "car"])
+    return JsonResponse(status)
 
 
 @login_required

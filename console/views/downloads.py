@@ -1,4 +1,5 @@
-"""Downloads of a user's own models and evaluations (404 for anyone else's)."""
+"""Downloads of a user's own models and evaluations (404 for anyone else's). The car model
+is built by a worker (a page with its progress, then the download from the store)."""
 
 from __future__ import annotations
 
@@ -7,13 +8,14 @@ from collections.abc import Callable
 from django.contrib import messages
 from django.contrib.auth.decorators import login_required
 from django.http import Http404, HttpRequest, HttpResponse
-from django.shortcuts import redirect
+from django.shortcuts import redirect, render
+from django.urls import reverse
 from django.views.decorators.http import require_safe
 
 from console.views.owned import owned_evaluation, owned_model
 from training.http import media_response
 from training.models import RacingModel
-from training.services import ServiceError, downloads
+from training.services import ServiceError, background, downloads
 
 GZIP, ONNX = "application/gzip", "application/octet-stream"
 ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str, str]] = {
@@ -32,7 +34,12 @@ def model_download(request: HttpRequest, model_id: int, kind: str) -> HttpRespon
         raise Http404("No such download")
     build, filename, content_type = ARCHIVES[kind]
     try:
-        data = build(model)
+        if kind == "car":  # built by a worker (heavy): served once it is in the store
+            data = background.car_export_ready(model)
+            if data is None:
+                return _preparing(request, model, filename.format(name=model.name))
+        else:
+            data = build(model)
     except ServiceError as exc:
         messages.error(request, exc.sentence)
         if request.GET.get("back") == "list":
@@ -41,6 +48,15 @@ def model_download(request: HttpRequest, model_id: int, kind: str) -> HttpRespon
     response = HttpResponse(data, content_type=content_type)
     response["Content-Disposition"] = f'attachment; filename="{filename.format(name=model.name)}"'
     return response
+
+
+def _preparing(request: HttpRequest, model: RacingModel, filename: str) -> HttpResponse:
+    """Queue (or follow) the worker that builds the car archive; the page polls it and then
+    offers the download. Raises ServiceError when it cannot be started."""
+    task_id = background.car_export_start(model=model, user=request.user)
+    context = {"nav": "models", "model": model, "filename": filename,
+               "task_poll": reverse("background-task", args=[task_id])}  # fmt: skip
+    return render(request, "models/preparing.html", context, status=202)
 
 
 @login_required

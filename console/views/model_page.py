@@ -12,13 +12,16 @@ from django.views.decorators.http import require_http_methods, require_POST
 from console import tracks
 from console.forms import EvaluateForm
 from console.model_form import HP_LABELS, PPO_ONLY, SAC_ONLY
+from console.race_form import race_initial
 from console.views.owned import owned_evaluation, owned_model, owned_training_job
 from console.views.service_calls import attempt, attempt_on_form
 from training import selectors, services
 from training.models import RacingModel
 from training.rl.policies import NETWORK_LABELS
 
-SENSOR_LABELS = {"FRONT_FACING_CAMERA": "Camera", "STEREO_CAMERAS": "Stereo camera"}
+SENSOR_LABELS = {"FRONT_FACING_CAMERA": "Camera", "STEREO_CAMERAS": "Stereo camera",
+                 "LIDAR": "LIDAR", "SECTOR_LIDAR": "Sector LIDAR",
+                 "DISCRETIZED_SECTOR_LIDAR": "Discretized sector LIDAR"}  # fmt: skip
 ALGORITHM_LABELS = {"clipped_ppo": "PPO", "sac": "SAC"}
 
 
@@ -38,8 +41,9 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
     track_names = {r.info.id: r for r in tracks.track_rows()}
     if evaluate_form is None:
         evaluate_form = EvaluateForm(
-            initial={"track_id": model.track_id, "direction": model.direction}
-        )
+            initial={"track_id": model.track_id, "direction": model.direction,
+                     **race_initial(model.race_type, model.race_config)}
+        )  # fmt: skip
     actions = selectors.model_actions(model, job)
     context = {
         "nav": "models",
@@ -47,6 +51,7 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
         "track": track_names.get(model.track_id),
         "track_names": {k: r.info.name for k, r in track_names.items()},
         "sensor_labels": [SENSOR_LABELS.get(s, s) for s in model.sensors],
+        "sensor_advice": services.sensor_advice(model.race_type, model.sensors),
         "algorithm_label": ALGORITHM_LABELS.get(model.algorithm, model.algorithm),
         "network_label": NETWORK_LABELS.get(model.neural_network, model.neural_network),
         "hyperparameter_rows": hyperparameter_rows(model),
@@ -73,9 +78,22 @@ def model_detail(request: HttpRequest, model_id: int) -> HttpResponse:
 @require_POST
 def training_start(request: HttpRequest, model_id: int) -> HttpResponse:
     model = owned_model(request, model_id)
-    attempt(request, lambda: services.training_start(model=model, user=request.user),
-            success="Training queued: it starts as soon as a worker is free.")  # fmt: skip
+    try:
+        job = services.training_start(model=model, user=request.user)
+    except services.ServiceError as exc:
+        messages.error(request, exc.sentence)
+    else:
+        _say_queued(request, job, "Training queued: it starts as soon as a worker is free.")
     return redirect("model-detail", model_id=model.pk)
+
+
+def _say_queued(request: HttpRequest, job: object, success: str) -> None:
+    """The confirmation, or, when the task queue could not be reached, that the job waits."""
+    note = getattr(job, "dispatch_note", "")
+    if note:
+        messages.warning(request, f"{success.split(':')[0].rstrip('.')}, but {note}.")
+    else:
+        messages.success(request, success)
 
 
 @login_required
@@ -101,13 +119,15 @@ def evaluation_start(request: HttpRequest, model_id: int) -> HttpResponse:
                 user=request.user,
                 track_id=data["track_id"],
                 direction=data["direction"],
+                race_type=data["race_type"] or None,
+                race_config=data["race_config"],
                 laps=data["laps"],
                 off_track_penalty_s=data["off_track_penalty_s"],
                 crash_penalty_s=data["crash_penalty_s"],
             ),
         )
         if job is not None:
-            messages.success(request, "Evaluation queued.")
+            _say_queued(request, job, "Evaluation queued.")
             return redirect(f"/models/{model.pk}/#evaluation")
     return _page(request, model, evaluate_form=form, status=400)
 

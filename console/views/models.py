@@ -1,4 +1,9 @@
-"""The models list and the model life: create, clone, import, delete."""
+"""The models list and the model life: create, clone, import, delete.
+
+Create, clone and reward edit save a reward function only after a passed validation on a
+worker (``reward_check="passed"``, training/services/models.py): when one is needed the page
+comes back 202 with the form as posted and the validation's poll URL (``pending_poll``);
+static/js/reward_editor.js shows the progress and posts the form again once it passes."""
 
 from __future__ import annotations
 
@@ -6,15 +11,17 @@ from django.contrib import messages
 from django.contrib.auth.decorators import login_required
 from django.http import HttpRequest, HttpResponse
 from django.shortcuts import redirect, render
+from django.urls import reverse
 from django.views.decorators.http import require_http_methods, require_safe
 
 from console import tracks
 from console.forms import CloneForm, ImportForm, RewardForm
 from console.model_form import HP_FIELDS, PPO_ONLY, SAC_ONLY, ModelCreateForm
 from console.views.owned import owned_model
-from console.views.service_calls import attempt_on_form
+from console.views.service_calls import attempt_on_form, attempt_validated
 from training import selectors, services
 from training.rewards.examples import EXAMPLES, example_source
+from training.services import background
 
 
 @login_required
@@ -50,15 +57,26 @@ def _create_page(request: HttpRequest, form: ModelCreateForm, **extra: object) -
         **_editor_context(extra.pop("reward_errors", None)),  # type: ignore[arg-type]
         **extra,
     }
-    status = 400 if form.is_bound and form.errors else 200
-    return render(request, "models/create.html", context, status=status)
+    return render(request, "models/create.html", context, status=_status(form, context))
+
+
+def _status(form, context: dict) -> int:
+    """400 for a refused form, 202 while its reward function is being validated."""
+    if form.is_bound and form.errors:
+        return 400
+    return 202 if context.get("pending_poll") else 200
 
 
 @login_required
 @require_http_methods(["GET", "POST"])
 def model_create(request: HttpRequest) -> HttpResponse:
     if request.method == "GET":
+        if "start_from" in request.GET:  # a link to a preset: /models/new/?start_from=racing
+            return _create_page(request, ModelCreateForm.from_preset(request.GET))
         return _create_page(request, ModelCreateForm())
+    if "use_preset" in request.POST:
+        # "Start from": re-render with the preset's values over what was typed.
+        return _create_page(request, ModelCreateForm.from_preset(request.POST), jump="step-start")
     if "generate" in request.POST:
         # The action-space generator: re-render with the generated table, everything else as typed.
         bound = ModelCreateForm(request.POST)
@@ -69,7 +87,8 @@ def model_create(request: HttpRequest) -> HttpResponse:
     if not form.is_valid():
         return _create_page(request, form)
     data = form.cleaned_data
-    model, reward_errors = attempt_on_form(
+    model, reward_errors, poll = attempt_validated(
+        request,
         form,
         lambda: services.model_create(
             owner=request.user,
@@ -77,20 +96,25 @@ def model_create(request: HttpRequest) -> HttpResponse:
             description=data["description"],
             track_id=data["track_id"],
             direction=data["direction"],
+            extra_tracks=data.get("extra_tracks", []),
             race_type=data["race_type"],
-            sensors=[data["sensor"]],
+            race_config=data["race_config"],
+            sensors=data["sensors"],
             action_space=data["actions"],
             algorithm=data["algorithm"],
             neural_network=data["neural_network"],
             hyperparameters=data["hyperparameters"],
             reward_function=data["reward_function"],
             max_minutes=data["max_minutes"],
+            reward_check="passed",
         ),
     )
     if model is None:
-        # Refused by the server: reopen the page at the reward editor when that is the cause.
-        jump = "step-reward" if reward_errors else ""
-        return _create_page(request, form, reward_errors=reward_errors, jump=jump)
+        # Refused by the server, or validating: reopen the page at the reward editor when
+        # that is the cause.
+        jump = "step-reward" if reward_errors or poll else ""
+        return _create_page(request, form, reward_errors=reward_errors, jump=jump,
+                            pending_poll=poll)  # fmt: skip
     messages.success(request, f"Model {model.name} created. Start training when you are ready.")
     return redirect("model-detail", model_id=model.pk)
 
@@ -109,9 +133,11 @@ def model_clone(request: HttpRequest, model_id: int) -> HttpResponse:
     }
     form = CloneForm(request.POST or None, initial=initial)
     reward_errors: list[dict] = []
+    poll = ""
     if request.method == "POST" and form.is_valid():
         data = form.cleaned_data
-        clone, reward_errors = attempt_on_form(
+        clone, reward_errors, poll = attempt_validated(
+            request,
             form,
             lambda: services.model_clone(
                 model=source,
@@ -122,6 +148,7 @@ def model_clone(request: HttpRequest, model_id: int) -> HttpResponse:
                 direction=data["direction"],
                 reward_function=data["reward_function"],
                 max_minutes=data["max_minutes"],
+                reward_check="passed",
             ),
         )
         if clone is not None:
@@ -132,10 +159,10 @@ def model_clone(request: HttpRequest, model_id: int) -> HttpResponse:
         "form": form,
         "source": source,
         "fresh_copy": not source.has_checkpoint,
+        "pending_poll": poll,
         **_editor_context(reward_errors),
     }
-    status = 400 if form.is_bound and form.errors else 200
-    return render(request, "models/clone.html", context, status=status)
+    return render(request, "models/clone.html", context, status=_status(form, context))
 
 
 @login_required
@@ -144,11 +171,14 @@ def model_reward_edit(request: HttpRequest, model_id: int) -> HttpResponse:
     model = owned_model(request, model_id)
     form = RewardForm(request.POST or None, initial={"reward_function": model.reward_function})
     reward_errors: list[dict] = []
+    poll = ""
     if request.method == "POST" and form.is_valid():
-        updated, reward_errors = attempt_on_form(
+        source = form.cleaned_data["reward_function"]
+        updated, reward_errors, poll = attempt_validated(
+            request,
             form,
             lambda: services.model_update_reward(
-                model=model, user=request.user, reward_function=form.cleaned_data["reward_function"]
+                model=model, user=request.user, reward_function=source, reward_check="passed"
             ),
         )
         if updated is not None:
@@ -159,34 +189,36 @@ def model_reward_edit(request: HttpRequest, model_id: int) -> HttpResponse:
         "form": form,
         "model": model,
         "can_edit": selectors.model_actions(model).can_edit_reward,
+        "pending_poll": poll,
         **_editor_context(reward_errors),
     }
-    status = 400 if form.is_bound and form.errors else 200
-    return render(request, "models/reward_edit.html", context, status=status)
+    return render(request, "models/reward_edit.html", context, status=_status(form, context))
 
 
 @login_required
 @require_http_methods(["GET", "POST"])
 def model_import(request: HttpRequest) -> HttpResponse:
+    """The upload is stored and imported by a worker (training/services/background.py); the
+    page (``?task=<id>``) shows the progress and moves on to the model when it is there."""
     form = ImportForm(request.POST or None, request.FILES or None)
     if request.method == "POST" and form.is_valid():
         data = form.cleaned_data
-        model, _ = attempt_on_form(
+        task_id, _ = attempt_on_form(
             form,
-            lambda: services.model_import(
+            lambda: background.model_import_start(
                 owner=request.user,
                 name=data["name"],
                 description=data["description"],
-                upload=data["archive"],
+                data=data["archive"].read(),
             ),
         )
-        if model is not None:
-            messages.success(request, f"Model {model.name} imported.")
-            if getattr(model, "import_note", ""):
-                messages.warning(request, model.import_note[:1].upper() + model.import_note[1:])
-            return redirect("model-detail", model_id=model.pk)
+        if task_id is not None:
+            return redirect(f"{reverse('model-import')}?task={task_id}")
+    task = request.GET.get("task", "")
+    poll = reverse("background-task", args=[task]) if task.isalnum() else ""
     status = 400 if form.is_bound and form.errors else 200
-    return render(request, "models/import.html", {"nav": "models", "form": form}, status=status)
+    context = {"nav": "models", "form": form, "task_poll": poll}
+    return render(request, "models/import.html", context, status=status)
 
 
 @login_required

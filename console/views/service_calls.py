@@ -9,9 +9,10 @@ from typing import TypeVar
 from django.contrib import messages
 from django.forms import Form
 from django.http import HttpRequest
+from django.urls import reverse
 
 from console.forms import add_service_error
-from training.services import RewardRejected, ServiceError
+from training.services import RewardRejected, ServiceError, rewards
 
 T = TypeVar("T")
 
@@ -26,6 +27,34 @@ def attempt(request: HttpRequest, call: Callable[[], object], *, success: str = 
     if success:
         messages.success(request, success)
     return True
+
+
+def attempt_validated(
+    request: HttpRequest, form: Form, call: Callable[[], T]
+) -> tuple[T | None, list[dict], str]:
+    """:func:`attempt_on_form` for a call that saves a reward function (``reward_check=
+    "passed"``): when the function still needs a validation, queue one on a worker and return
+    its poll URL as the third item (the page shows the progress and posts the form again when
+    it passes). The web process never runs the function."""
+    try:
+        return call(), [], ""
+    except rewards.ValidationNeeded as exc:
+        needed = exc
+    except RewardRejected as exc:
+        add_service_error(form, "The reward function has errors; see the marked lines.", exc.field)
+        return None, exc.errors, ""
+    except ServiceError as exc:
+        add_service_error(form, exc.message, exc.field)
+        return None, [], ""
+    try:
+        task_id = rewards.reward_validation_start(
+            user_id=request.user.pk, source=needed.source, track_id=needed.track_id,
+            direction=needed.direction,
+        )  # fmt: skip
+    except ServiceError as exc:
+        add_service_error(form, exc.message, "reward_function")
+        return None, [], ""
+    return None, [], f"{reverse('reward-validate')}?id={task_id}"
 
 
 def attempt_on_form(form: Form, call: Callable[[], T]) -> tuple[T | None, list[dict]]:

@@ -126,7 +126,10 @@
 
   async function loadActions() {
     const a = await getJSON("data/actions.json");
-    const names = a.actions.length ? a.actions : ["continuous: no discrete actions"];
+    const names = a.actions.length ? a.actions : ["no actions: the action space could not be read"];
+    $("actions-note").textContent = a.continuous
+      ? "Continuous action space: each step counts in a bin of steering (5 bins) × speed (3 bins) over the space's ranges, by what the car executed; the action heatmap shows the most used bin."
+      : "";
     const stacked = { scales: { x: { stacked: true }, y: { stacked: true, max: 100 } } };
     const sets = (rows) => names.map((n, k) => ({ label: `${k}: ${n}`, data: rows.map((r) => r[k] ?? 0), backgroundColor: window.TrackPalette[k % 15] }));
     chart("actions-chart", "bar", { labels: a.iterations, datasets: sets(a.per_iteration) }, stacked);

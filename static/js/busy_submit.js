@@ -1,4 +1,4 @@
-// A form that takes a while on the server (create: the reward runs in the sandbox; import: the
+// A form that takes a while on the server (create: saving the model files; import: the
 // checkpoint is read and checked) says so while the browser waits: the submit button turns
 // into "<data-busy> 12 s", once per page, so the user neither waits blind nor submits twice.
 "use strict";

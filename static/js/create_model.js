@@ -47,6 +47,8 @@
     if (sac.disabled && sac.checked) form.querySelector("[name=algorithm][value=clipped_ppo]").checked = true;
     const algorithm = checked("algorithm");
     form.querySelectorAll("[data-only]").forEach((f) => (f.hidden = f.dataset.only !== algorithm));
+    const race = checked("race_type");
+    form.querySelectorAll("[data-race]").forEach((f) => (f.hidden = f.dataset.race !== race));
   }
   form.addEventListener("change", sync);
   sync();

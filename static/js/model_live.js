@@ -42,6 +42,17 @@
   }
 
   // ---- training
+  // "live · evaluation lap 2 · iteration 7 · policy v6": what the streamed workers say the
+  // frame shows (older workers send only the pictures).
+  const frameCaption = (frame) => {
+    const parts = ["live"];
+    if (frame.phase === "evaluation") parts.push(frame.lap ? `evaluation lap ${frame.lap}` : "evaluation lap");
+    else if (frame.phase === "training") parts.push("training episode");
+    if (frame.iteration !== undefined) parts.push(`iteration ${frame.iteration}`);
+    if (frame.version !== undefined) parts.push(`policy v${frame.version}`);
+    return parts.join(" · ");
+  };
+
   const training = config.training;
   if (training) {
     const elapsedEl = document.getElementById("elapsed");
@@ -73,7 +84,7 @@
       if (frame.camera) camera.src = `data:image/jpeg;base64,${frame.camera}`;
       if (frame.chase) chase.src = `data:image/jpeg;base64,${frame.chase}`;
       videoCard.dataset.frames = Number(videoCard.dataset.frames) + 1;
-      videoState.textContent = "live";
+      videoState.textContent = frameCaption(frame);
       videoCard.classList.add("live");
     };
 

@@ -1,5 +1,8 @@
 // The reward-function editor: CodeMirror (static/vendor/codemirror.bundle.js, global
-// RacecraftEditor) over the form's textarea, the examples, and the Validate button.
+// RacecraftEditor) over the form's textarea, the examples, the Validate button, and saving
+// after a validation: when the server answers a save with data-pending-poll (the function is
+// being validated on a worker), poll it, then post the form again once it passes (the server
+// saves at once then) or mark the errors on their lines.
 "use strict";
 (function () {
   const root = document.querySelector(".reward-editor");
@@ -56,6 +59,52 @@
     root.scrollIntoView({ block: "start" });
   }
 
+  // Polls a validation until it is done (``limitMs`` at most); ``onStatus`` sees each answer.
+  async function pollUntilDone(data, poll, limitMs, onStatus) {
+    const stop = Date.now() + limitMs;
+    while (data.status === "queued" || data.status === "running") {
+      onStatus(data);
+      if (Date.now() > stop) throw new Error(`no answer in ${Math.round(limitMs / 60000)} minutes`);
+      await new Promise((done) => setTimeout(done, 500));
+      data = await (await fetch(poll)).json();
+    }
+    return data;
+  }
+
+  const pending = root.dataset.pendingPoll;
+  if (pending) {
+    const note = root.querySelector("#pending-validation");
+    const form = root.closest("form");
+    const submit = form.querySelector("button[type=submit].primary");  // the save button, not "generate"
+    const started = Date.now();
+    if (submit) submit.disabled = true;
+    const say = (state) => {
+      const s = Math.floor((Date.now() - started) / 1000);
+      const what = state === "running" ? "Running your function in the sandbox" : "Waiting for a free worker";
+      note.textContent = `Validating before saving: ${what}… ${s} s. Nothing is saved until it passes.`;
+    };
+    say("queued");
+    root.scrollIntoView({ block: "start" });
+    pollUntilDone({ status: "queued" }, pending, 600000, (data) => say(data.status))
+      .then((data) => {
+        if (data.ok) {
+          note.textContent = "Valid: saving…";
+          delete form.dataset.sent;
+          if (submit) submit.disabled = false;
+          form.requestSubmit(submit || undefined);
+          return;
+        }
+        note.remove();
+        showErrors(data.errors || []);
+        if (submit) submit.disabled = false;
+      })
+      .catch((err) => {
+        note.remove();
+        showErrors([{ type: "NETWORK_ERROR", message: "The validation did not finish: " + err + ". Save again to retry." }]);
+        if (submit) submit.disabled = false;
+      });
+  }
+
   const useExample = root.querySelector("#use-example");
   if (useExample) {
     useExample.addEventListener("click", () => {
@@ -101,16 +150,11 @@
             direction: direction ? direction.value : "native",
           }),
         });
-        let data = await response.json();
         // The validation runs in a worker: poll until it is done (two minutes at most).
-        const poll = data.poll;
-        const stop = Date.now() + 120000;
-        while (data.status === "queued" || data.status === "running") {
-          validate.textContent = data.status === "running" ? "Running…" : "Queued…";
-          if (Date.now() > stop) throw new Error("no answer in two minutes");
-          await new Promise((done) => setTimeout(done, 500));
-          data = await (await fetch(poll)).json();
-        }
+        const first = await response.json();
+        const data = await pollUntilDone(first, first.poll, 120000, (d) => {
+          validate.textContent = d.status === "running" ? "Running…" : "Queued…";
+        });
         if (data.ok) showOk(data.rewards);
         else showErrors(data.errors);
       } catch (err) {

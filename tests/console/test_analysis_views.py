@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 
 from racing.tracks import TrackCatalog
+from tests.console.conftest import make_model
 from training.analysis.synthetic import synthetic_iteration
 from training.models import RacingModel
 from training.services import analysis
@@ -82,3 +83,23 @@ def test_replay_refuses_bad_code_and_reruns_a_recorded_episode(alice_client, log
     assert len(result["new_reward"]) == len(result["old_reward"]) > 0
     speeds = analysis.analysis_episode(logged_model, 1, 9)["speed"]
     assert result["new_reward"] == pytest.approx([2 * s for s in speeds], abs=1e-3)
+
+
+def test_a_continuous_model_has_action_charts(alice, alice_client, store_dir) -> None:
+    space = {"steering_angle": {"low": -30.0, "high": 30.0}, "speed": {"low": 1.0, "high": 2.5}}
+    model = make_model(alice, name="alice-continuous", action_space=space)
+    track = TrackCatalog([]).load(model.track_id)
+    store, keys = get_store(), keys_for(model.pk)
+    for it in range(2):
+        data = synthetic_iteration(track, iteration=it, episodes=6, num_actions=0, mean_steps=30,
+                                   continuous=((-30.0, 30.0), (1.0, 2.5)))  # fmt: skip
+        store.put_bytes(keys.simtrace(it), data, "text/csv")
+    base = f"/models/{model.pk}/analysis/data/"
+    heat = alice_client.get(base + "heatmap.json?kind=action").json()
+    assert len(heat["actions"]) == 15 and {v for v in heat["values"] if v is not None}
+    actions = alice_client.get(base + "actions.json").json()
+    assert actions["continuous"] and len(actions["actions"]) == 15
+    assert [len(row) for row in actions["per_iteration"]] == [15, 15]
+    assert store.exists(keys.prefix + analysis.SUMMARY_NAME)  # made on the first view, kept
+    csv = alice_client.get(base + "actions.csv").content.decode().splitlines()
+    assert csv[0].startswith("iteration,-30..-18° 1.00..1.50 m/s,") and len(csv) == 3

@@ -158,6 +158,8 @@ def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, we
 
     # ---- download the car model
     page.click("summary:has-text('Download')")
+    # Built by the training worker at the end: served at once (else a worker builds it first:
+    # tests/console/test_background_browser.py).
     with page.expect_download() as info:
         page.click("#download-car")
     download = info.value
@@ -165,11 +167,11 @@ def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, we
     with tarfile.open(fileobj=io.BytesIO(Path(download.path()).read_bytes())) as tar:
         assert {"agent/model.pb", "model_metadata.json"} <= set(tar.getnames())
 
-    # ---- clone, then delete the clone
+    # ---- clone (its reward function is validated on the worker first), then delete the clone
     page.click("#clone-link")
     page.fill("#id_name", "oval-racer-2")
     page.click("#clone-submit")
-    expect(page.locator("h1")).to_contain_text("oval-racer-2")
+    expect(page.locator("h1")).to_contain_text("oval-racer-2", timeout=180_000)
     page.click("#delete-link")
     shot(page, "07-delete-confirm")
     page.click("#confirm-delete")

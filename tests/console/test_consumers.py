@@ -77,6 +77,12 @@ def test_the_owner_gets_the_chart_so_far_then_live_messages(training_job, alice_
         await sync_to_async(live.send)(group, frame)
         got = await ws.receive_json_from(timeout=10)
         assert got == {"type": "frame", "camera": "Y2FtZXJh", "chase": "Y2hhc2U="}
+        # A streamed worker says what the frame shows; the page captions the video with it.
+        frame.update(phase="evaluation", iteration=7, version=6, lap=2, secret={"x": 1})
+        await sync_to_async(live.send)(group, frame)
+        got = await ws.receive_json_from(timeout=10)
+        assert got == {"type": "frame", "camera": "Y2FtZXJh", "chase": "Y2hhc2U=",
+                       "phase": "evaluation", "iteration": 7, "version": 6, "lap": 2}  # fmt: skip
 
         await sync_to_async(live.send)(group, {"type": "job.status", "status": "STOPPING"})
         assert await ws.receive_json_from(timeout=10) == {"type": "status", "status": "STOPPING"}

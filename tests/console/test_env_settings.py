@@ -117,6 +117,7 @@ def test_defaults_need_no_environment(tmp_path: Path) -> None:
         ({"MINIO_ENDPOINT": "minio:9000"}, "MINIO_ACCESS_KEY and MINIO_SECRET_KEY"),
         ({"CELERY_WORKER_CONCURRENCY": "many"}, "not an integer"),
         ({"DATABASE_URL": "nosuchdb://x/y"}, "DATABASE_URL"),
+        ({"RACECRAFT_TORCH_DEVICE": "gpu"}, "RACECRAFT_TORCH_DEVICE='gpu': use auto, cpu, cuda"),
     ],
 )
 def test_bad_environment_raises_improperly_configured(
@@ -126,6 +127,17 @@ def test_bad_environment_raises_improperly_configured(
     assert result.returncode != 0
     assert "ImproperlyConfigured" in result.stderr
     assert message in result.stderr
+
+
+def test_the_torch_device_is_auto_unless_set(tmp_path: Path) -> None:
+    code = "import console.settings as s; print(s.RACECRAFT_TORCH_DEVICE)"
+    for env, expected in (({}, "auto"), ({"RACECRAFT_TORCH_DEVICE": "CUDA:1"}, "cuda:1")):
+        clean = {k: v for k, v in os.environ.items() if k in ("PATH", "HOME", "LANG")}
+        clean |= {"RACECRAFT_VAR_DIR": str(tmp_path / "var"), **env}
+        result = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=clean,
+                                capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.split() == [expected]
 
 
 def test_database_url_selects_postgresql(tmp_path: Path) -> None:

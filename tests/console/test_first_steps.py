@@ -10,6 +10,7 @@ from django.test import Client
 from tests.console.conftest import PASSWORD, make_model
 from training import services
 from training.models import EvaluationJob, JobStatus, RacingModel, TrainingJob
+from training.services import rewards
 
 pytestmark = pytest.mark.django_db
 
@@ -60,6 +61,10 @@ def test_the_reward_can_be_edited_until_training_starts(alice_model, alice_clien
     assert 'id="edit-reward"' in alice_client.get(f"/models/{alice_model.pk}/").content.decode()
     bad = alice_client.post(url, {"reward_function": "def reward_function(p):\n    return p[\n"})
     assert bad.status_code == 400 and "SYNTAX_ERROR" in bad.content.decode()
+    # Validated on a worker first (the page's way there: tests/console/test_reward_saving.py).
+    rewards.reward_validation_remember(
+        user_id=alice_model.owner_id, source=GOOD, track_id="racecraft_oval", direction="native"
+    )
     response = alice_client.post(url, {"reward_function": GOOD})
     assert response.status_code == 302
     alice_model.refresh_from_db()

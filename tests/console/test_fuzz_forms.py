@@ -48,7 +48,7 @@ def form_data(fields: list[str]) -> st.SearchStrategy[dict[str, str]]:
 
 @pytest.fixture(autouse=True)
 def store_dir(tmp_path, settings):
-    from django.core.cache import cache
+    from tests.conftest import clear_cache
 
     settings.STORE_DIR = tmp_path / "store"
     settings.RACECRAFT_TRACKS_DIR = tmp_path / "tracks"
@@ -56,7 +56,7 @@ def store_dir(tmp_path, settings):
     # the tests that run after it.
     settings.RACECRAFT_SIGNUP_RATE = "100000/m"
     yield
-    cache.clear()
+    clear_cache()
 
 
 @pytest.fixture

@@ -68,6 +68,9 @@ OVERLAPS_JS = """
       const r = visible(el);
       const style = getComputedStyle(el);
       if (r.width < 1 || r.height < 1 || style.visibility === "hidden") continue;
+      // A closed <details> shows only its summary: what it holds is not drawn.
+      const closed = el.parentElement && el.parentElement.closest("details:not([open])");
+      if (closed && !el.matches("details")) continue;
       boxes.push({ el, r, name: selector + (el.id ? "#" + el.id : "") });
     }
   }
@@ -197,7 +200,7 @@ def site(redis_env, tmp_path, settings) -> Iterator[Site]:
     # reward validation runs (the web process runs no reward code).
     with (
         daphne_process(env=env, log_path=tmp_path / "daphne.log") as server,
-        celery_worker_process(queues=["default"], env=env, log_path=tmp_path / "worker.log"),
+        celery_worker_process(queues=["interactive"], env=env, log_path=tmp_path / "worker.log"),
     ):
         yield Site(url=server.url, **ids)
 

@@ -12,6 +12,7 @@ from django.test import Client
 
 from tests.console.conftest import PASSWORD, REWARD, make_model
 from training.models import RacingModel
+from training.services import rewards
 
 pytestmark = pytest.mark.django_db
 
@@ -113,11 +114,66 @@ def test_sac_needs_a_continuous_action_space(alice_client, store_dir) -> None:
     assert "SAC works only with a continuous action space" in response.content.decode()
 
 
-def test_too_few_actions_and_other_race_types_are_refused(alice_client, store_dir) -> None:
-    data = create_data(action_steering=["0"], action_speed=["1"], race_type="HEAD_TO_BOT")
-    page = alice_client.post("/models/new/", data).content.decode()
+def test_too_few_actions_and_bad_race_settings_are_refused(alice_client, store_dir) -> None:
+    data = create_data(action_steering=["0"], action_speed=["1"], race_type="HEAD_TO_BOT",
+                       number_of_bots="9", bot_speed="0.5")  # fmt: skip
+    response = alice_client.post("/models/new/", data)
+    assert response.status_code == 400
+    page = response.content.decode()
     assert "2 to 30 actions; this one has 1" in page
-    assert "does not have yet; choose Time trial" in page  # the services' rule, on the field
+    # the services' rule, on its field, and the typed value kept
+    field = re.search(r'id="field-number_of_bots">(.*?)</div>', page, re.S)[1]
+    assert "Number_of_bots must be an integer from 1 to 6, not 9" in html.unescape(field)
+    assert 'value="9"' in field
+
+
+@pytest.fixture
+def reward_passed(alice) -> None:
+    """The form's reward function validated on a worker (the page's way: test_reward_saving)."""
+    rewards.reward_validation_remember(
+        user_id=alice.pk, source=REWARD, track_id="racecraft_oval", direction="native"
+    )
+
+
+def test_object_avoidance_with_stereo_and_lidar(alice_client, store_dir, reward_passed) -> None:
+    """The wizard offers the race types, their settings and the LIDAR; the model keeps them
+    and its page shows them."""
+    page = alice_client.get("/models/new/").content.decode()
+    for words in ('value="OBJECT_AVOIDANCE"', 'value="HEAD_TO_BOT"', 'name="number_of_objects"',
+                  'name="object_positions"', 'name="bot_speed"', 'name="bot_lane_change"',
+                  'value="SECTOR_LIDAR"', 'data-race="HEAD_TO_BOT"'):  # fmt: skip
+        assert words in page, words
+    assert "disabled" not in re.search(r'id="step-race">(.*?)</section>', page, re.S)[1]
+    bad = create_data(race_type="OBJECT_AVOIDANCE", object_positions="0.2,1;0.25,-1")
+    page = alice_client.post("/models/new/", bad).content.decode()
+    assert "closer than 0.13 of the track" in page and not RacingModel.objects.exists()
+    data = create_data(race_type="OBJECT_AVOIDANCE", number_of_objects="4",
+                       object_placement="random", sensor="STEREO_CAMERAS",
+                       lidar="LIDAR")  # fmt: skip
+    response = alice_client.post("/models/new/", data)
+    assert response.status_code == 302, response.content.decode()[:2000]
+    model = RacingModel.objects.get()
+    assert model.race_type == "OBJECT_AVOIDANCE" and model.sensors == ["STEREO_CAMERAS", "LIDAR"]
+    assert model.race_config["number_of_objects"] == 4 and model.race_config["randomize_objects"]
+    page = alice_client.get(f"/models/{model.pk}/").content.decode()
+    assert "4, placed at random each episode" in page and "Stereo camera, LIDAR" in page
+
+
+def test_head_to_bot_settings_reach_the_model(alice_client, store_dir, reward_passed) -> None:
+    data = create_data(race_type="HEAD_TO_BOT", number_of_bots="3", bot_speed="0.8",
+                       bot_lane_change="on", lane_change_min_s="2", lane_change_max_s="4",
+                       lidar="SECTOR_LIDAR")  # fmt: skip
+    assert alice_client.post("/models/new/", data).status_code == 302
+    model = RacingModel.objects.get()
+    assert model.sensors == ["FRONT_FACING_CAMERA", "SECTOR_LIDAR"]
+    config = model.race_config
+    assert (config["number_of_bots"], config["bot_speed"], config["bot_lane_change"]) == (
+        3, 0.8, True)  # fmt: skip
+    assert (config["lane_change_min_s"], config["lane_change_max_s"]) == (2.0, 4.0)
+    page = alice_client.get(f"/models/{model.pk}/").content.decode()
+    assert "3 at 0.8 m/s, changing lanes every 2.0-4.0 s" in page
+    # camera + sector LIDAR against bots: DeepRacer's advice is stereo cameras with a LIDAR
+    assert "recommends stereo cameras with a LIDAR to race against bot cars" in page
 
 
 def test_reward_errors_are_shown_with_their_lines(alice_client, store_dir) -> None:
@@ -134,6 +190,10 @@ def test_reward_errors_are_shown_with_their_lines(alice_client, store_dir) -> No
 
 
 def test_create_discrete_and_continuous(alice, alice_client, store_dir) -> None:
+    # Validated on a worker first (the page's way there: tests/console/test_reward_saving.py).
+    rewards.reward_validation_remember(
+        user_id=alice.pk, source=REWARD, track_id="racecraft_oval", direction="native"
+    )
     response = alice_client.post("/models/new/", create_data())
     model = RacingModel.objects.get(owner=alice, name="my-first-model")
     assert response.status_code == 302 and response["Location"] == f"/models/{model.pk}/"
@@ -199,18 +259,25 @@ def test_downloads_need_a_checkpoint(alice_model, alice_client) -> None:
     assert alice_client.get(f"/models/{alice_model.pk}/download/nope/").status_code == 404
 
 
-def test_import_errors_are_clear(alice_client, store_dir) -> None:
+def test_import_errors_are_clear(alice, alice_client, store_dir) -> None:
     missing = alice_client.post("/models/import/", {"name": "imported"})
     assert missing.status_code == 400
     assert "Choose a model archive to upload." in missing.content.decode()
     from django.core.files.uploadedfile import SimpleUploadedFile
 
-    junk = SimpleUploadedFile("model.tar.gz", b"not an archive at all", "application/gzip")
-    response = alice_client.post("/models/import/", {"name": "imported", "archive": junk})
-    assert response.status_code == 400
+    taken = SimpleUploadedFile("model.tar.gz", b"an archive", "application/gzip")
+    make_model(alice, "imported")
+    response = alice_client.post("/models/import/", {"name": "imported", "archive": taken})
+    assert response.status_code == 400  # what is cheap to check is answered at once
     page = response.content.decode()
-    assert 'value="imported"' in page and "field-error" in page
-    assert not RacingModel.objects.exists()
+    assert 'value="imported"' in page and "field-error" in page and "already have" in page
+    # The archive itself is read by a worker (tests/training/services/test_background.py):
+    junk = SimpleUploadedFile("model.tar.gz", b"not an archive at all", "application/gzip")
+    response = alice_client.post("/models/import/", {"name": "other", "archive": junk})
+    assert response.status_code == 302 and "?task=" in response["Location"]
+    page = alice_client.get(response["Location"]).content.decode()
+    assert 'id="import-progress"' in page and "data-background-poll" in page
+    assert not RacingModel.objects.filter(name="other").exists()
 
 
 def test_start_training_and_stop_it(alice_model, alice_client, monkeypatch,
@@ -249,3 +316,31 @@ def test_evaluate_form_errors(alice_model, alice_client) -> None:
          "off_track_penalty_s": "2", "crash_penalty_s": "5"},
     )  # fmt: skip
     assert ok.status_code == 400 and "Train this model before evaluating it" in ok.content.decode()
+
+
+def test_evaluate_in_another_race_with_its_settings(alice, alice_client, store_dir) -> None:
+    """The evaluation form offers the race types and their settings, starting from the
+    model's own race; the services' rules answer bad settings on their field."""
+    model = make_model(alice, race_type="OBJECT_AVOIDANCE",
+                       race_config={"number_of_objects": 4, "randomize_objects": True})  # fmt: skip
+    RacingModel.objects.filter(pk=model.pk).update(has_checkpoint=True)
+    page = alice_client.get(f"/models/{model.pk}/").content.decode()
+    form = re.search(r'id="evaluate-form"(.*?)</form>', page, re.S)[1]
+    assert '<option value="OBJECT_AVOIDANCE" selected>' in form
+    assert re.search(r'name="number_of_objects" value="4"', form)
+    assert '<option value="random" selected>' in form
+    common = {"track_id": "racecraft_oval", "direction": "native", "laps": "3",
+              "off_track_penalty_s": "2", "crash_penalty_s": "5"}  # fmt: skip
+    bad = alice_client.post(f"/models/{model.pk}/evaluate/",
+                            {**common, "race_type": "HEAD_TO_BOT", "bot_speed": "7"})  # fmt: skip
+    assert bad.status_code == 400
+    field = re.search(r'id="field-bot_speed">(.*?)</div>', bad.content.decode(), re.S)[1]
+    assert "Bot_speed must be 0.2-6.0 m/s, not 7.0" in html.unescape(field)
+    ok = alice_client.post(
+        f"/models/{model.pk}/evaluate/",
+        {**common, "race_type": "HEAD_TO_BOT", "number_of_bots": "3", "bot_speed": "1.5"},
+    )
+    assert ok.status_code == 302
+    job = model.evaluations.get()
+    assert job.race_type == "HEAD_TO_BOT" and job.race_config["number_of_bots"] == 3
+    assert job.race_config["bot_speed"] == 1.5

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import pytest
 from django.contrib.auth import get_user_model
-from django.core.cache import cache
 from django.test import Client
+
+from tests.conftest import clear_cache
 
 pytestmark = pytest.mark.django_db
 PASSWORD = "correct-horse-battery-9"
@@ -13,9 +14,9 @@ PASSWORD = "correct-horse-battery-9"
 
 @pytest.fixture(autouse=True)
 def _fresh_counts():
-    cache.clear()
+    clear_cache()
     yield
-    cache.clear()
+    clear_cache()
 
 
 def test_log_in_attempts_are_limited_per_address(settings) -> None:
@@ -58,3 +59,34 @@ def test_pages_and_other_posts_are_not_throttled(settings) -> None:
     client = Client()
     for _ in range(3):
         assert client.get("/accounts/signup/").status_code == 200
+
+
+def test_counts_are_shared_between_processes(settings, child_env, tmp_path) -> None:
+    """The counts live in Redis (CACHES): attempts on this process and on a separate web
+    server (daphne) count against one limit, so N web processes do not allow N times the
+    rate. A day's window, so the count cannot roll over between the two processes."""
+    import urllib.error
+    import urllib.request
+
+    from tests.support import daphne_process
+
+    settings.RACECRAFT_LOGIN_RATE = "3/d"
+    env = {**child_env, "RACECRAFT_LOGIN_RATE": "3/d"}
+    with daphne_process(env=env, log_path=tmp_path / "daphne.log") as web:
+
+        def post_there() -> int:
+            request = urllib.request.Request(
+                f"{web.url}/accounts/login/", data=b"username=x&password=y", method="POST"
+            )
+            try:
+                return urllib.request.urlopen(request, timeout=30).status
+            except urllib.error.HTTPError as exc:
+                return exc.code
+
+        assert post_there() == 403  # counted there (then refused: no CSRF token)
+        here = [
+            Client().post("/accounts/login/", {"username": f"u{i}", "password": "x"}).status_code
+            for i in range(3)
+        ]
+        assert here == [200, 200, 429]  # the server's attempt counted here
+        assert post_there() == 429  # and this process's there

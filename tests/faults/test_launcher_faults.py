@@ -26,8 +26,10 @@ from console.launcher import (
 
 def test_up_runs_one_worker_per_kind_of_work():
     plans = {p.name: p for p in ConsoleOptions(concurrency=2).workers()}
-    assert set(plans) == {"quick", "training", "evaluation"}
-    assert plans["quick"].queues == ("default",)
+    assert set(plans) == {"quick", "interactive", "training", "evaluation"}
+    assert plans["quick"].queues == ("default",)  # the reaper and the league: never queued
+    assert plans["interactive"].queues == ("interactive",)  # behind users' validations
+    assert plans["interactive"].nice == plans["quick"].nice
     assert 0 < plans["quick"].nice < plans["training"].nice  # web > quick tasks > jobs
     assert plans["training"].queues == ("training",) and plans["training"].concurrency == 2
     assert plans["training"].nice > 0 and plans["evaluation"].nice > 0

@@ -167,8 +167,8 @@ def alice(db):
 def down_store(monkeypatch, tmp_path, settings):
     settings.STORE_DIR = tmp_path / "store"
     store = DownStore(tmp_path / "store")
-    for module in ("training.services.models", "training.services.downloads"):
-        monkeypatch.setattr(f"{module}.get_store", lambda: store)
+    for module in ("models", "downloads", "background"):
+        monkeypatch.setattr(f"training.services.{module}.get_store", lambda: store)
     return store
 
 

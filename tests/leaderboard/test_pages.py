@@ -56,6 +56,26 @@ def test_facilitators_create_events_through_the_form(client, fran, alice):
     assert (event.ranking_method, event.min_laps, event.is_private) == ("TOTAL_TIME", 3, False)
 
 
+def test_object_avoidance_events_through_the_form(client, fran):
+    """The race rules answer on the form's fields; the event page shows the boxes."""
+    data = {"name": "Box Open", "description": "", "division": "PRO",
+            "track_id": "racecraft_oval", "direction": "native", "race_type": "OBJECT_AVOIDANCE",
+            "opens_at": "2030-03-01T00:00", "closes_at": "2030-03-31T00:00",
+            "ranking_method": "TOTAL_TIME", "min_laps": 3, "max_laps": 3,
+            "off_track_penalty_s": 5, "collision_penalty_s": 5, "max_resets": "",
+            "max_submissions_per_racer": 10, "number_of_objects": 0, "bot_count": 0,
+            "bot_speed_mps": 1.0}  # fmt: skip
+    client.force_login(fran)
+    page = client.post("/league/events/new/", data).content.decode()
+    assert "number_of_objects must be an integer from 1 to 6, not 0" in page
+    assert "<details open>" in page  # the settings are shown with their error
+    response = client.post("/league/events/new/", {**data, "number_of_objects": 4,
+                                                   "randomize_objects": "on"})  # fmt: skip
+    event = Event.objects.get(name="Box Open")
+    assert response["Location"] == f"/league/events/{event.pk}/"
+    assert "4, placed at random" in client.get(f"/league/events/{event.pk}/").content.decode()
+
+
 def test_event_page_submit_and_screen(client, event, alice):
     model = make_model(alice)
     client.force_login(alice)

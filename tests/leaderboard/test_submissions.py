@@ -100,10 +100,12 @@ def test_an_alias_is_needed_before_racing(event):
         submission_create(event=event, user=newbie, model=make_model(newbie))
 
 
-def test_unsupported_race_types_refuse(fran, alice):
-    event = make_event(fran, race_type="HEAD_TO_BOT", bot_count=3)
-    with pytest.raises(LeagueError, match="bots"):
-        submission_create(event=event, user=alice, model=make_model(alice))
+def test_head_to_bot_submissions_carry_the_bots(fran, alice):
+    event = make_event(fran, race_type="HEAD_TO_BOT", bot_count=3, bot_speed_mps=0.75,
+                       collision_penalty_s=5.0)  # fmt: skip
+    job = submission_create(event=event, user=alice, model=make_model(alice)).evaluation
+    assert job.race_type == "HEAD_TO_BOT" and job.crash_penalty_s == 5.0
+    assert (job.race_config["number_of_bots"], job.race_config["bot_speed"]) == (3, 0.75)
 
 
 # ------------------------------------------------------------------ results

@@ -1,15 +1,15 @@
-"""Chart data from iteration summaries: small JSON-able tables (column name -> list), each
+"""Chart data from a run's summary: small JSON-able tables (column name -> list), each
 downloadable as CSV (:func:`to_csv`). Units as in :mod:`training.analysis.trace`; times in
 seconds, progress and rates in percent."""
 
 from __future__ import annotations
 
 import io
-from collections.abc import Sequence
 
 import numpy as np
 
-from training.analysis.trace import SECTIONS, Grid, IterationSummary, Steps, episode_steps
+from training.analysis.summary import RunSummary
+from training.analysis.trace import Steps, episode_steps
 
 Table = dict[str, list]
 HEATMAPS = ("reward", "speed", "action")
@@ -18,68 +18,67 @@ HEATMAPS = ("reward", "speed", "action")
 def _r(values: np.ndarray, digits: int = 3) -> list:
     """A float array as a list, rounded, NaN as None (JSON null)."""
     rounded = np.round(np.asarray(values, dtype=np.float64), digits)
-    return [None if not np.isfinite(v) else float(v) for v in rounded]
-
-
-def _episodes(summaries: Sequence[IterationSummary]) -> dict[str, np.ndarray]:
-    """Every episode of the run, with its iteration (0-based, as the file names)."""
-    if not summaries:
-        return {"iteration": np.zeros(0, np.int64)}
-    parts = [s.episodes for s in summaries]
-    out = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
-    out["iteration"] = np.concatenate(
-        [np.full(len(s.episodes["episode"]), s.iteration, np.int64) for s in summaries]
-    )
+    out = rounded.tolist()
+    for i in np.flatnonzero(~np.isfinite(rounded)):
+        out[i] = None
     return out
 
 
-def progress(summaries: Sequence[IterationSummary], evaluation: dict[int, float]) -> Table:
+def progress(summary: RunSummary, evaluation: dict[int, float]) -> Table:
     """Per iteration: episodes, mean reward and progress, completion rate, mean and standard
     deviation of the completed laps' times, and the evaluation's mean progress
     (``evaluation``: iteration -> percent) where there was one."""
-    table: Table = {k: [] for k in ("iteration", "episodes", "reward", "progress",
-                                    "completion_rate", "lap_time", "lap_time_std",
-                                    "eval_progress")}  # fmt: skip
-    for s in summaries:
-        e = s.episodes
-        done = e["time_s"][e["completed"]]
-        table["iteration"].append(s.iteration)
-        table["episodes"].append(len(e["episode"]))
-        table["reward"] += _r([e["reward"].mean() if len(e["reward"]) else np.nan])
-        table["progress"] += _r([e["progress"].mean() if len(e["progress"]) else np.nan], 2)
-        table["completion_rate"] += _r([100.0 * e["completed"].mean() if len(e["completed"])
-                                        else np.nan], 2)  # fmt: skip
-        table["lap_time"] += _r([done.mean() if len(done) else np.nan])
-        table["lap_time_std"] += _r([done.std() if len(done) > 1 else np.nan])
-        table["eval_progress"] += _r([evaluation.get(s.iteration, np.nan)], 2)
-    return table
+    e = summary.episodes
+    iterations = summary.iterations
+    # Episodes are sorted by iteration: each iteration's rows are one run of the table.
+    starts = np.searchsorted(e["iteration"], iterations, side="left")
+    ends = np.searchsorted(e["iteration"], iterations, side="right")
+    count = (ends - starts).astype(np.float64)
+    done = e["completed"].astype(np.float64)
+    lap = np.where(e["completed"], e["time_s"], 0.0)
+
+    def per_iteration(values: np.ndarray) -> np.ndarray:
+        """The sum of ``values`` over each iteration's episodes."""
+        sums = np.r_[0.0, np.cumsum(values)]
+        return sums[ends] - sums[starts]
+
+    laps = per_iteration(done)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lap_mean = per_iteration(lap) / laps
+        lap_var = per_iteration(lap * lap) / laps - lap_mean**2
+        return {
+            "iteration": iterations.tolist(),
+            "episodes": count.astype(np.int64).tolist(),
+            "reward": _r(per_iteration(e["reward"]) / count),
+            "progress": _r(per_iteration(e["progress"]) / count, 2),
+            "completion_rate": _r(100.0 * laps / count, 2),
+            "lap_time": _r(lap_mean),
+            "lap_time_std": _r(np.where(laps > 1, np.sqrt(np.maximum(lap_var, 0.0)), np.nan)),
+            "eval_progress": _r([evaluation.get(int(i), np.nan) for i in iterations], 2),
+        }
 
 
-def heatmap(summaries: Sequence[IterationSummary], grid: Grid, kind: str) -> dict:
-    """Cells of the track grid: mean reward or speed per step, or the most chosen action.
-    ``values`` is row-major (``ny`` rows of ``nx`` cells from ``y0``), null where no car went."""
+def heatmap(summary: RunSummary, kind: str) -> dict:
+    """Cells of the track grid: mean reward or speed per step, or the most chosen action
+    (bin). ``values`` is row-major (``ny`` rows of ``nx`` cells from ``y0``), null where no
+    car went (or, for actions, where no step had an action bin)."""
     if kind not in HEATMAPS:
         raise ValueError(f"heatmap is one of {HEATMAPS}")
-    cells = grid.nx * grid.ny
-    count = sum((s.grid_count for s in summaries), np.zeros(cells))
+    grid, count = summary.grid, summary.grid_count
     with np.errstate(invalid="ignore", divide="ignore"):
         if kind == "action":
-            actions = sum((s.grid_actions for s in summaries[1:]), summaries[0].grid_actions) \
-                if summaries else np.zeros((cells, 1))  # fmt: skip
+            actions = summary.grid_actions
             values = np.where(actions.sum(axis=1) > 0, actions.argmax(axis=1), np.nan)
         else:
-            total = sum((getattr(s, f"grid_{kind}") for s in summaries), np.zeros(cells))
+            total = summary.grid_reward if kind == "reward" else summary.grid_speed
             values = np.where(count > 0, total / count, np.nan)
     return {"kind": kind, "x0": grid.x0, "y0": grid.y0, "cell": grid.cell, "nx": grid.nx,
             "ny": grid.ny, "values": _r(values), "steps": int(count.sum())}  # fmt: skip
 
 
-def episodes_table(summaries: Sequence[IterationSummary]) -> Table:
+def episodes_table(summary: RunSummary) -> Table:
     """Every episode: iteration, episode, steps, time (s), progress (%), reward, mean speed."""
-    e = _episodes(summaries)
-    if not len(e["iteration"]):
-        return {k: [] for k in ("iteration", "episode", "steps", "time_s", "progress",
-                                "reward", "speed", "completed")}  # fmt: skip
+    e = summary.episodes
     return {
         "iteration": e["iteration"].tolist(),
         "episode": e["episode"].tolist(),
@@ -92,24 +91,30 @@ def episodes_table(summaries: Sequence[IterationSummary]) -> Table:
     }
 
 
-def fastest_laps(summaries: Sequence[IterationSummary], count: int = 10) -> Table:
+def fastest_laps(summary: RunSummary, count: int = 10) -> Table:
     """The ``count`` fastest completed laps of training, fastest first."""
-    table = episodes_table(summaries)
-    done = [i for i, c in enumerate(table["completed"]) if c]
-    done.sort(key=lambda i: table["time_s"][i])
-    return {k: [v[i] for i in done[:count]] for k, v in table.items() if k != "completed"}
-
-
-def action_usage(summaries: Sequence[IterationSummary], num_actions: int) -> dict:
-    """How often each action was chosen: per iteration (percent of its steps) and per track
-    section (percent of the section's steps, all iterations)."""
-    per_iteration = [_percent(s.actions[:num_actions]) for s in summaries]
-    width = max(1, num_actions)
-    sections = sum((s.section_actions for s in summaries), np.zeros((SECTIONS, width)))
+    e = summary.episodes
+    done = np.flatnonzero(e["completed"])
+    best = done[np.argsort(e["time_s"][done], kind="stable")[:count]]
     return {
-        "iterations": [s.iteration for s in summaries],
-        "per_iteration": per_iteration,
-        "per_section": [_percent(row[:num_actions]) for row in sections],
+        "iteration": e["iteration"][best].tolist(),
+        "episode": e["episode"][best].tolist(),
+        "steps": e["steps"][best].tolist(),
+        "time_s": _r(e["time_s"][best]),
+        "progress": _r(e["progress"][best], 2),
+        "reward": _r(e["reward"][best]),
+        "speed": _r(e["speed"][best]),
+    }
+
+
+def action_usage(summary: RunSummary) -> dict:
+    """How often each action (bin) was chosen: per iteration (percent of its steps) and per
+    track section (percent of the section's steps, all iterations)."""
+    width = len(summary.bins)
+    return {
+        "iterations": summary.iterations.tolist(),
+        "per_iteration": [_percent(row[:width]) for row in summary.iteration_actions],
+        "per_section": [_percent(row[:width]) for row in summary.section_actions],
     }
 
 
@@ -118,10 +123,10 @@ def _percent(counts: np.ndarray) -> list:
     return _r(100.0 * counts / total if total else np.zeros(len(counts)), 2)
 
 
-def episode_path(summary: IterationSummary, episode: int) -> Table:
-    """One episode, step by step: position, speed, reward, action and progress."""
-    steps = episode_steps(summary, episode)
-    return {name: _r(values, 4) for name, values in steps.items() if name != "episode"}
+def episode_path(steps: Steps, episode: int) -> Table:
+    """One episode of an iteration file, step by step: position, speed, reward, action (or
+    action bin) and progress."""
+    return {name: _r(values, 4) for name, values in episode_steps(steps, episode).items()}
 
 
 def evaluation_laps(steps: Steps) -> list[Table]:

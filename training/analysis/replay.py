@@ -5,8 +5,13 @@ A sim-trace row holds the reported point (``X, Y``, metres), the heading (``yaw`
 the commanded steering (degrees) and speed (m/s), progress (%), the step number, whether all
 wheels were on the track and the episode's status; the rest of ``params`` (distance from the
 centre, closest waypoints, track width, ...) comes from the track, as the simulator computes
-it (:func:`racing.params.build_params`). ``sim_time`` is the time since the episode's
-``prepare`` row. Objects are not logged, so object keys are empty (as in a time trial).
+it (:func:`racing.params.build_params`). Objects are not logged, so object keys are empty
+(as in a time trial).
+
+``sim_time`` comes from the recorded ``tstamp``, relative to the episode's start, as the
+reward saw it (:func:`sim_times`): DeepRacer stamps an episode's first row, ``prepare``, at
+the episode's start (``tstamp`` is the car's running clock), though the reward of that first
+step already saw one control step (1/15 s) go by.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ import csv
 import io
 import math
 
-from racing.car import REPORTED_POINT_AHEAD_M, Pose
+from racing.car import CONTROL_HZ, REPORTED_POINT_AHEAD_M, Pose
 from racing.params import build_params
 from racing.track import Track
 
@@ -47,13 +52,32 @@ def _flag(text: str) -> bool:
     return text.strip().lower() == "true"
 
 
+def sim_times(rows: list[dict[str, str]]) -> list[float]:
+    """The simulated time (s) each row's reward saw, from the rows' ``tstamp``.
+
+    The episode started at the ``prepare`` row's stamp when the first row is one (DeepRacer's
+    files and ours); otherwise (a trace cut from the simulator's own rows, whose stamps are
+    the episode's time after each step) one control step per step before the first row.
+    A step's time is its stamp minus the start; the ``prepare`` row, stamped at the start,
+    saw its own step's time. Raises ``KeyError``/``ValueError`` for malformed rows.
+    """
+    dt = 1.0 / CONTROL_HZ
+    first = rows[0]
+    prepare = first.get("episode_status", "") == "prepare"
+    start = float(first["tstamp"]) - (0.0 if prepare else float(first["steps"]) * dt)
+    times = [float(row["tstamp"]) - start for row in rows]
+    if prepare:
+        times[0] = float(first["steps"]) * dt
+    return [round(t, 6) for t in times]
+
+
 def step_params(rows: list[dict[str, str]], track: Track) -> list[dict]:
     """``params`` for each row, as the reward function saw them (see the module's doc)."""
     out = []
     try:
-        start = float(rows[0]["tstamp"])
+        times = sim_times(rows)
         hint = None
-        for row in rows:
+        for row, sim_time in zip(rows, times, strict=True):
             x, y = float(row["X"]), float(row["Y"])
             yaw = math.radians(float(row["yaw"]))
             status = row.get("episode_status", "")
@@ -67,7 +91,7 @@ def step_params(rows: list[dict[str, str]], track: Track) -> list[dict]:
                 wheels_on_track=4 if on_track else (0 if status == "off_track" else 2),
                 steering_angle=float(row["steer"]), speed=float(row["throttle"]),
                 progress=float(row["progress"]), steps=int(float(row["steps"])),
-                is_crashed=status == "crashed", sim_time=float(row["tstamp"]) - start,
+                is_crashed=status == "crashed", sim_time=sim_time,
             ))  # fmt: skip
     except (KeyError, ValueError) as exc:
         raise ReplayError(f"the sim-trace rows are malformed: {exc}") from None

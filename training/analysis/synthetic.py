@@ -22,9 +22,12 @@ def synthetic_iteration(
     num_actions: int,
     seed: int = 0,
     mean_steps: int = 100,
+    continuous: tuple[tuple[float, float], tuple[float, float]] | None = None,
 ) -> bytes:
     """One ``<iteration>-iteration.csv``: ``episodes`` episodes numbered from
-    ``iteration * episodes``; about one in four completes a lap, the rest go off track."""
+    ``iteration * episodes``; about one in four completes a lap, the rest go off track.
+    ``continuous``: the steering (degrees) and speed (m/s) ranges of a continuous action
+    space, whose actions are then drawn from them and logged as ``[steer speed]``."""
     rng = np.random.default_rng(seed + iteration)
     out = io.StringIO()
     out.write(",".join(SIMTRACE_COLUMNS) + "\n")
@@ -36,7 +39,7 @@ def synthetic_iteration(
         complete = rng.random() < 0.25
         n = lap_steps if complete else int(rng.integers(10, max(11, 2 * mean_steps)))
         start = rng.random() * track.length
-        speed = rng.uniform(1.0, 3.0, n)
+        speed = rng.uniform(*(continuous[1] if continuous else (1.0, 3.0)), n)
         s = start + np.cumsum(speed * STEP_S)
         progress = np.minimum(100.0, 100.0 * (s - start) / track.length)
         if complete:
@@ -46,7 +49,11 @@ def synthetic_iteration(
         y = np.interp(along, track.cumulative, line[:, 1])
         x += rng.normal(0, 0.05, n)
         y += rng.normal(0, 0.05, n)
-        action = rng.integers(0, max(1, num_actions), n)
+        action = rng.integers(0, max(1, num_actions), n).astype(str)
+        steer = np.zeros(n)
+        if continuous is not None:
+            steer = rng.uniform(*continuous[0], n)
+            action = np.array([f"[{a:.2f} {v:.2f}]" for a, v in zip(steer, speed, strict=True)])
         reward = rng.uniform(0, 1, n)
         waypoint = (along / track.length * track.num_waypoints).astype(int)
         for i in range(n):
@@ -54,9 +61,9 @@ def synthetic_iteration(
             end = "lap_complete" if complete else "off_track"
             status = "prepare" if i == 0 else (end if last else "in_progress")
             out.write(
-                f"{number},{i + 1},{x[i]:.4f},{y[i]:.4f},0.0,0.00,{speed[i]:.2f},{action[i]},"
-                f"{reward[i]:.4f},{last},{not last or complete},{progress[i]:.4f},{waypoint[i]},"
-                f"{track.length:.2f},{clock + i * STEP_S:.3f},{status},0.00,0,0.0\n"
+                f"{number},{i + 1},{x[i]:.4f},{y[i]:.4f},0.0,{steer[i]:.2f},{speed[i]:.2f},"
+                f"{action[i]},{reward[i]:.4f},{last},{not last or complete},{progress[i]:.4f},"
+                f"{waypoint[i]},{track.length:.2f},{clock + i * STEP_S:.3f},{status},0.00,0,0.0\n"
             )
         clock += n * STEP_S
     return out.getvalue().encode()

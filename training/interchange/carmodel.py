@@ -8,6 +8,10 @@ model optimizer converts it with its own ``--input`` names and ``[1,120,160,C]``
   ``main_level/agent/<main|policy>/online/network_0/<SENSOR>/<SENSOR>`` with ``<SENSOR>`` =
   ``FRONT_FACING_CAMERA`` (C = 1) or ``STEREO_CAMERAS`` (C = 2); ``main`` for PPO, ``policy``
   for SAC, as the car's model optimizer names them.
+- with a LIDAR (``sensor`` lists one after the camera), a second input
+  ``main_level/agent/<main|policy>/online/network_0/<LIDAR>/<LIDAR>``, float32 ``[-1, n]``
+  (``LIDAR`` 64 ranges in metres, ``SECTOR_LIDAR`` 8, ``DISCRETIZED_SECTOR_LIDAR`` 64), through
+  DeepRacer's LIDAR embedder, its features concatenated after the camera's (``ConcatV2``).
 - output, the last node: PPO ``main_level/agent/main/online/network_1/ppo_head_0/policy``,
   SAC ``main_level/agent/policy/online/network_0/sac_policy_head_0/policy``. Discrete: softmax
   over the metadata's actions ``[-1, n]`` (the car takes the argmax). Continuous: ``[-1, 2]``
@@ -36,6 +40,12 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from torch import nn
 
+from racing.lidar import (
+    DISCRETIZED_CLIP_M,
+    DISCRETIZED_VALUES,
+    NUMBER_OF_SECTORS,
+    SENSOR_DISCRETIZED_LIDAR,
+)
 from training.interchange.tarball import deterministic_tar_gz
 from training.interchange.tfgraph import GraphWriter
 from training.rl.checkpoints import load_checkpoint
@@ -66,25 +76,29 @@ def output_name(algorithm: str) -> str:
 
 
 def car_metadata(metadata: ModelMetadata) -> bytes:
-    """``model_metadata.json`` for the car: DeepRacer's network name, Racecraft's kept aside."""
+    """``model_metadata.json`` for the car: DeepRacer's network name, Racecraft's kept aside;
+    a discretized sector LIDAR's ``lidar_config`` (the car bins its scan with it) written as
+    the simulator's, unless the metadata already has one."""
     data = metadata.to_json()
+    if metadata.lidar == SENSOR_DISCRETIZED_LIDAR and "lidar_config" not in data:
+        data["lidar_config"] = {
+            "num_sectors": NUMBER_OF_SECTORS,
+            "num_values_per_sector": DISCRETIZED_VALUES,
+            "clipping_dist": DISCRETIZED_CLIP_M,
+        }
     data["neural_network"] = DEEPRACER_NAMES[metadata.neural_network]
     if data["neural_network"] != metadata.neural_network:
         data[RACECRAFT_NETWORK_KEY] = metadata.neural_network
     return (json.dumps(data, indent=2, sort_keys=True) + "\n").encode()
 
 
-def _policy_layers(model: BaseAlgorithm) -> tuple[list[nn.Module], nn.Linear]:
-    """The torch layers from the image to the action head, in order, and the head."""
+def _policy_parts(model: BaseAlgorithm) -> tuple[nn.Module, list[nn.Module], nn.Linear]:
+    """The policy's features extractor, the layers between it and the head, and the head."""
     if isinstance(model, SAC):
         actor = model.policy.actor
-        extractor, latent, head = actor.features_extractor, actor.latent_pi, actor.mu
-    else:
-        policy = model.policy
-        extractor, head = policy.pi_features_extractor, policy.action_net
-        latent = policy.mlp_extractor.policy_net
-    layers = [*extractor.cnn, *extractor.linear, *latent]
-    return layers, head
+        return actor.features_extractor, list(actor.latent_pi), actor.mu
+    policy = model.policy
+    return policy.pi_features_extractor, list(policy.mlp_extractor.policy_net), policy.action_net
 
 
 class _Emitter:
@@ -137,30 +151,56 @@ def export_car_graph(model: BaseAlgorithm, metadata: ModelMetadata) -> bytes:
     """The frozen TensorFlow graph (``model.pb`` bytes) of ``model``'s policy, for the car.
 
     ``model`` is an SB3 PPO/SAC model of a Racecraft network (:mod:`training.rl.policies`)
-    taking ``(C, 120, 160)`` images. Raises :class:`CarExportError` for another policy.
+    taking ``(C, 120, 160)`` images (and, with a LIDAR, the LIDAR vector). Raises
+    :class:`CarExportError` for another policy.
     """
     algorithm = "sac" if isinstance(model, SAC) else "clipped_ppo"
     if algorithm != metadata.training_algorithm:
         raise CarExportError(f"the model is {algorithm} but the metadata says otherwise")
-    shape = tuple(model.policy.observation_space.shape)
+    space = model.policy.observation_space
+    lidar = metadata.lidar
+    if isinstance(space, gym.spaces.Dict) != (lidar is not None):
+        raise CarExportError("the policy's inputs do not match the metadata's sensor list")
+    camera_space = space.spaces[metadata.camera] if lidar else space
+    shape = tuple(camera_space.shape)
     if shape != (metadata.channels, CAMERA_HEIGHT, CAMERA_WIDTH):
         raise CarExportError(f"the policy takes images of shape {shape}, not (C, 120, 160)")
     scope = f"{SAC_SCOPE}/network_0" if algorithm == "sac" else f"{PPO_SCOPE}/network_1"
     writer = GraphWriter()
-    x = writer.placeholder(
-        input_name(algorithm, metadata.camera), [-1, CAMERA_HEIGHT, CAMERA_WIDTH, shape[0]]
-    )
-    sensor_scope = f"{scope}/{metadata.camera}"
-    x = writer.binary(
-        "RealDiv", f"{sensor_scope}/truediv", x, writer.const(f"{sensor_scope}/truediv/y", 255.0)
-    )
-    emitter = _Emitter(writer, sensor_scope, (CAMERA_HEIGHT, CAMERA_WIDTH, shape[0]))
-    layers, head = _policy_layers(model)
+    extractor, latent, head = _policy_parts(model)
+    camera = extractor.camera if lidar else extractor
     with torch.no_grad():
-        for layer in layers:
+        x, emitter = _camera_branch(writer, scope, algorithm, metadata.camera, shape[0], camera)
+        if lidar:
+            size = int(space.spaces[lidar].shape[0])
+            y = writer.placeholder(input_name(algorithm, lidar), [-1, size])
+            emitter = _Emitter(writer, f"{scope}/{lidar}", (size,))
+            for layer in extractor.lidar:
+                y = emitter.layer(y, layer)
+            x = writer.concat(f"{scope}/middleware_concat", [x, y])
+            emitter = _Emitter(writer, f"{scope}/middleware", (int(extractor.features_dim),))
+        for layer in latent:
             x = emitter.layer(x, layer)
         _head(writer, emitter, x, head, model, algorithm)
     return writer.serialize()
+
+
+def _camera_branch(
+    writer: GraphWriter, scope: str, algorithm: str, sensor: str, channels: int, camera: nn.Module
+) -> tuple[str, _Emitter]:
+    """The camera input (0..255), its /255 and the camera network up to its features; the
+    emitter goes on with the layers after them (camera-only graphs keep their node names)."""
+    x = writer.placeholder(
+        input_name(algorithm, sensor), [-1, CAMERA_HEIGHT, CAMERA_WIDTH, channels]
+    )
+    sensor_scope = f"{scope}/{sensor}"
+    x = writer.binary(
+        "RealDiv", f"{sensor_scope}/truediv", x, writer.const(f"{sensor_scope}/truediv/y", 255.0)
+    )
+    emitter = _Emitter(writer, sensor_scope, (CAMERA_HEIGHT, CAMERA_WIDTH, channels))
+    for layer in [*camera.cnn, *camera.linear]:
+        x = emitter.layer(x, layer)
+    return x, emitter
 
 
 def _head(

@@ -4,7 +4,9 @@ download (a frozen TensorFlow graph) is :mod:`training.interchange.carmodel`.
 
 **ONNX policy** (:func:`export_onnx`): input ``"observation"``, float32 ``(1, C, 120, 160)``,
 the grayscale camera in 0..255 (``C`` = 1, or 2 for the stereo pair); the /255 scaling is inside
-the graph. Output for a discrete space ``"action_probabilities"`` ``(1, n)`` (softmax over the
+the graph; with a LIDAR a second input named by its sensor id (``"LIDAR"``, ``"SECTOR_LIDAR"``
+or ``"DISCRETIZED_SECTOR_LIDAR"``), float32 ``(1, n)``, as the simulator gives it. Output for a
+discrete space ``"action_probabilities"`` ``(1, n)`` (softmax over the
 actions of ``model_metadata.json``, in order); for a continuous one ``"action"`` ``(1, 2)`` =
 ``[steering_deg, speed_m_s]``, deterministic: PPO's mean clipped to the ranges, SAC's
 tanh-squashed mean rescaled to them (what ``model.predict(obs, deterministic=True)`` returns).
@@ -47,6 +49,7 @@ from training.rl.checkpoints import (  # noqa: F401 - re-exported for callers
     read_checkpoint_tensors,
 )
 from training.rl.metadata import ModelMetadata
+from training.rl.policies import CameraLidarExtractor, split_sensors
 
 OPSET = 17
 INPUT_NAME = "observation"
@@ -66,17 +69,37 @@ VIRTUAL_MODEL_EXCLUDED = ("training-simtrace/", "evaluation/", "videos/", "expor
 # --- ONNX ------------------------------------------------------------------------------------
 
 
+class _Features(nn.Module):
+    """A features extractor fed as the exported graph's inputs: the image in 0..255 and, for
+    a camera + LIDAR extractor, the LIDAR vector."""
+
+    def __init__(self, extractor: nn.Module) -> None:
+        super().__init__()
+        self.extractor = extractor
+        self.keys = (
+            (extractor.camera_key, extractor.lidar_key)
+            if isinstance(extractor, CameraLidarExtractor)
+            else None
+        )
+
+    def forward(self, observation: torch.Tensor, lidar: torch.Tensor | None = None) -> torch.Tensor:
+        if self.keys is None:
+            return self.extractor(observation / 255.0)
+        camera_key, lidar_key = self.keys
+        return self.extractor({camera_key: observation / 255.0, lidar_key: lidar})
+
+
 class DiscretePolicy(nn.Module):
-    """PPO, discrete: image 0..255 → softmax over the actions."""
+    """PPO, discrete: image 0..255 (and LIDAR) → softmax over the actions."""
 
     def __init__(self, policy: nn.Module) -> None:
         super().__init__()
-        self.extractor = policy.pi_features_extractor
+        self.extractor = _Features(policy.pi_features_extractor)
         self.mlp = policy.mlp_extractor
         self.head = policy.action_net
 
-    def forward(self, observation: torch.Tensor) -> torch.Tensor:
-        latent = self.mlp.forward_actor(self.extractor(observation / 255.0))
+    def forward(self, observation: torch.Tensor, lidar: torch.Tensor | None = None) -> torch.Tensor:
+        latent = self.mlp.forward_actor(self.extractor(observation, lidar))
         return torch.softmax(self.head(latent), dim=-1)
 
 
@@ -90,19 +113,20 @@ class BoxPolicy(nn.Module):
         if self.squashed:
             actor = policy.actor
             self.extractor, self.latent, self.head = (
-                actor.features_extractor,
+                _Features(actor.features_extractor),
                 actor.latent_pi,
                 actor.mu,
             )
         else:
-            self.extractor, self.head = policy.pi_features_extractor, policy.action_net
+            self.extractor = _Features(policy.pi_features_extractor)
+            self.head = policy.action_net
             self.latent = policy.mlp_extractor.policy_net
         space = model.action_space
         self.register_buffer("low", torch.as_tensor(space.low, dtype=torch.float32))
         self.register_buffer("high", torch.as_tensor(space.high, dtype=torch.float32))
 
-    def forward(self, observation: torch.Tensor) -> torch.Tensor:
-        mean = self.head(self.latent(self.extractor(observation / 255.0)))
+    def forward(self, observation: torch.Tensor, lidar: torch.Tensor | None = None) -> torch.Tensor:
+        mean = self.head(self.latent(self.extractor(observation, lidar)))
         if self.squashed:
             return self.low + 0.5 * (torch.tanh(mean) + 1.0) * (self.high - self.low)
         return torch.minimum(torch.maximum(mean, self.low), self.high)
@@ -130,20 +154,29 @@ def export_onnx(model: BaseAlgorithm | bytes, metadata: ModelMetadata | None = N
         wrapper, output = BoxPolicy(model), CONTINUOUS_OUTPUT
     else:
         raise ExportError(f"cannot export a policy with action space {space}")
-    shape = tuple(model.policy.observation_space.shape)
+    space = model.policy.observation_space
+    lidar_key, inputs = None, [INPUT_NAME]
+    if isinstance(space, gym.spaces.Dict):
+        camera_key, lidar_key = split_sensors(space)
+        inputs.append(lidar_key)
+        space = space.spaces[camera_key]
+    shape = tuple(space.shape)
     if len(shape) != 3 or shape[1:] != (120, 160) or shape[0] not in (1, 2):
         raise ExportError(f"the policy takes images of shape {shape}, not (C, 120, 160)")
     wrapper.eval()
-    sample = torch.full((1, *shape), 128.0)
+    sample: tuple = (torch.full((1, *shape), 128.0),)
+    if lidar_key is not None:
+        size = model.policy.observation_space.spaces[lidar_key].shape[0]
+        sample = (*sample, torch.full((1, size), 0.5))
     buffer = io.BytesIO()
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")  # the TorchScript exporter announces its deprecation
         torch.onnx.export(
             wrapper,
-            (sample,),
+            sample,
             buffer,
             dynamo=False,
-            input_names=[INPUT_NAME],
+            input_names=inputs,
             output_names=[output],
             opset_version=OPSET,
             do_constant_folding=True,

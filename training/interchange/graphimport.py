@@ -290,6 +290,17 @@ def _probe(model: BaseAlgorithm, graph, metadata: ModelMetadata, found: _Graph) 
         )
 
 
+def _camera_only(metadata: ModelMetadata) -> None:
+    """DeepRacer graphs and checkpoints are read for camera networks only: a LIDAR model's
+    embedder and concatenation are not mapped (yet), so it is refused in plain words."""
+    if metadata.lidar is not None:
+        raise GraphImportError(
+            f"importing a DeepRacer model with a {metadata.lidar} is not supported: only "
+            "camera and stereo-camera models can be imported (a Racecraft virtual model with "
+            "a LIDAR imports as usual)"
+        )
+
+
 def policy_from_graph(data: bytes, metadata: ModelMetadata) -> tuple[BaseAlgorithm, ModelMetadata]:
     """The torch policy of a DeepRacer ``model.pb`` and the metadata naming its network.
 
@@ -299,6 +310,7 @@ def policy_from_graph(data: bytes, metadata: ModelMetadata) -> tuple[BaseAlgorit
     ``neural_network`` set to the matching Racecraft network. Raises :class:`GraphImportError`
     naming the node, name or shape at fault.
     """
+    _camera_only(metadata)
     try:
         graph = parse_graph(data)
     except GraphError as exc:
@@ -344,6 +356,7 @@ def policy_from_checkpoint(
     :data:`training.rl.policies.SPECS`), ``middleware_fc_embedder/Dense_0`` and the one dense
     layer of its head, on images divided by 255. Raises :class:`GraphImportError`.
     """
+    _camera_only(metadata)
     algorithm = metadata.training_algorithm
     scope = output_name(algorithm).rsplit("/", 2)[0] + "/"
     head_scope = output_name(algorithm).rsplit("/", 1)[0] + "/"

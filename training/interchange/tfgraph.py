@@ -134,6 +134,16 @@ class GraphWriter:
         self.graph.node.append(node)
         return name
 
+    def concat(self, name: str, xs: Sequence[str], axis: int = 1) -> str:
+        """``ConcatV2`` of nodes along ``axis`` (the features of two sensors, side by side)."""
+        axis_node = self.const(f"{name}/axis", np.int32(axis))  # a scalar, as TensorFlow wants
+        node = node_def_pb2.NodeDef(op="ConcatV2", name=name, input=[*xs, axis_node])
+        node.attr["T"].CopyFrom(attr_value_pb2.AttrValue(type=types_pb2.DT_FLOAT))
+        node.attr["Tidx"].CopyFrom(attr_value_pb2.AttrValue(type=types_pb2.DT_INT32))
+        node.attr["N"].CopyFrom(attr_value_pb2.AttrValue(i=len(xs)))
+        self.graph.node.append(node)
+        return name
+
     def serialize(self) -> bytes:
         return self.graph.SerializeToString(deterministic=True)
 
@@ -272,6 +282,8 @@ def run_graph(graph: graph_pb2.GraphDef, feeds: dict[str, np.ndarray], output: s
             result = _strided_slice(args[0], args[1], args[2], node)
         elif op == "Pack":
             result = np.stack(args, axis=int(node.attr["axis"].i))
+        elif op == "ConcatV2":
+            result = np.concatenate(args[:-1], axis=int(np.asarray(args[-1]).reshape(-1)[0]))
         else:
             raise GraphError(f"{name}: the op {op} is not supported")
         values[name] = np.asarray(result)

@@ -6,6 +6,10 @@ PPO: ``batch_size`` → batch_size, ``num_epochs`` → n_epochs, ``lr`` → lear
 ``num_episodes_between_training`` sets how many episodes each policy update learns from: the
 rollout length is re-planned before every update from the average episode length so far.
 
+The trainer's networks live on the device :func:`resolve_device` picks (``auto``: the GPU
+when the worker has one, else the CPU); everything else (evaluation jobs, imports, exports,
+the simulation side) builds its models on the CPU, the default of :func:`build_model`.
+
 SAC (continuous actions only): ``sac_alpha`` → a fixed ent_coef, ``loss_type`` → the critic
 loss, a replay buffer of recent steps, τ = 0.005 (SB3's soft update; DeepRacer's rl_coach used
 hard copies, which SB3 does not offer for SAC).
@@ -20,13 +24,12 @@ import torch
 import torch.nn.functional as F
 from gymnasium import spaces
 from stable_baselines3 import PPO, SAC
-from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.utils import explained_variance, polyak_update
 from stable_baselines3.common.vec_env import VecEnv
 
 from training.rl.checkpoints import load_weights
 from training.rl.hyperparams import Hyperparameters
-from training.rl.policies import LEAN, policy_kwargs, sac_policy_kwargs
+from training.rl.policies import LEAN, policy_kwargs, policy_type, sac_policy_kwargs
 
 CLIP_RANGE = 0.2
 GAE_LAMBDA = 0.95
@@ -38,6 +41,37 @@ SAC_BUFFER_STEPS = 20_000
 
 class AlgorithmError(ValueError):
     """An algorithm that does not fit the action space."""
+
+
+class DeviceError(ValueError):
+    """A torch device that is misspelt or that this machine does not have."""
+
+
+def resolve_device(name: str = "auto") -> torch.device:
+    """The torch device for ``name``: ``auto`` (CUDA when torch sees a GPU, else the CPU),
+    ``cpu``, ``cuda``, ``cuda:<n>``, ``mps`` or any other torch device string.
+
+    Raises :class:`DeviceError` for a string torch cannot read, or a GPU this machine lacks
+    (asked for explicitly, a missing GPU is an error, never a silent fall-back to the CPU).
+    """
+    name = (name or "auto").strip().lower()
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except (RuntimeError, ValueError):
+        raise DeviceError(
+            f"{name!r} is not a torch device: use auto, cpu, cuda or cuda:<n>"
+        ) from None
+    if device.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise DeviceError(f"{name!r}: this machine has no CUDA GPU (use auto or cpu)")
+        if device.index is not None and device.index >= count:
+            raise DeviceError(f"{name!r}: this machine has {count} CUDA GPU(s)")
+    elif device.type == "mps" and not torch.backends.mps.is_available():
+        raise DeviceError(f"{name!r}: this machine has no Apple GPU (use auto or cpu)")
+    return device
 
 
 def value_loss(loss_type: str, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -141,7 +175,8 @@ class DeepRacerPPO(PPO):
         if n_steps == self.n_steps:
             return
         self.n_steps = n_steps
-        self.rollout_buffer = RolloutBuffer(
+        # SB3 picked the buffer class for the observation space (a Dict one with a LIDAR).
+        self.rollout_buffer = self.rollout_buffer_class(
             n_steps,
             self.observation_space,
             self.action_space,
@@ -149,6 +184,7 @@ class DeepRacerPPO(PPO):
             gamma=self.gamma,
             gae_lambda=self.gae_lambda,
             n_envs=self.n_envs,
+            **self.rollout_buffer_kwargs,
         )
 
 
@@ -248,14 +284,16 @@ def build_model(
     network: str = LEAN,
     seed: int = 0,
     initial_steps: int = 64,
+    device: torch.device | str = "cpu",
 ) -> DeepRacerPPO | DeepRacerSAC:
-    """A new SB3 model for ``algorithm`` (``clipped_ppo`` or ``sac``) on ``env``."""
+    """A new SB3 model for ``algorithm`` (``clipped_ppo`` or ``sac``) on ``env``, its
+    networks on ``device`` (the trainer passes :func:`resolve_device`'s choice)."""
     continuous = not hasattr(env.action_space, "n")
     if algorithm == "clipped_ppo":
-        kwargs = policy_kwargs(network)
+        kwargs = policy_kwargs(network, env.observation_space)
         kwargs["optimizer_kwargs"] = {"eps": ADAM_EPS}
         model = DeepRacerPPO(
-            "CnnPolicy",
+            policy_type(env.observation_space),
             env,
             learning_rate=hp.lr,
             n_steps=initial_steps,
@@ -267,14 +305,14 @@ def build_model(
             ent_coef=hp.beta_entropy,
             policy_kwargs=kwargs,
             seed=seed,
-            device="cpu",
+            device=device,
             verbose=0,
         )
     elif algorithm == "sac":
         if not continuous:
             raise AlgorithmError("SAC needs a continuous action space")
         model = DeepRacerSAC(
-            "CnnPolicy",
+            policy_type(env.observation_space),
             env,
             learning_rate=hp.lr,
             buffer_size=SAC_BUFFER_STEPS,
@@ -284,10 +322,10 @@ def build_model(
             ent_coef=hp.sac_alpha if hp.sac_alpha > 0 else 1e-8,
             train_freq=(1, "step"),
             gradient_steps=1,
-            policy_kwargs=sac_policy_kwargs(network),
+            policy_kwargs=sac_policy_kwargs(network, env.observation_space),
             optimize_memory_usage=False,
             seed=seed,
-            device="cpu",
+            device=device,
             verbose=0,
         )
     else:
@@ -304,10 +342,12 @@ def load_model(
     *,
     network: str = LEAN,
     seed: int = 0,
+    device: torch.device | str = "cpu",
 ) -> DeepRacerPPO | DeepRacerSAC:
-    """A model built for ``env`` with the weights of a saved one (``model.save`` bytes), to
-    train further or to drive. Nothing in ``data`` is unpickled (see training.rl.checkpoints)."""
-    model = build_model(algorithm, env, hp, network=network, seed=seed)
+    """A model built for ``env`` on ``device`` with the weights of a saved one (``model.save``
+    bytes, saved on any device), to train further or to drive. Nothing in ``data`` is
+    unpickled (see training.rl.checkpoints)."""
+    model = build_model(algorithm, env, hp, network=network, seed=seed, device=device)
     load_weights(model, data)
     return model
 

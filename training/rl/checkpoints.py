@@ -23,7 +23,7 @@ from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from training.rl.metadata import ModelMetadata
-from training.rl.policies import policy_kwargs, sac_policy_kwargs
+from training.rl.policies import policy_kwargs, policy_type, sac_policy_kwargs
 
 MAX_CHECKPOINT_BYTES = 1_000_000_000  # uncompressed tensors in one checkpoint zip
 
@@ -39,15 +39,21 @@ class _SpacesEnv(gym.Env):
     """An env that only carries the spaces, so SB3 can build a policy without a simulator."""
 
     def __init__(self, metadata: ModelMetadata) -> None:
-        self.observation_space = gym.spaces.Box(0, 255, (120, 160, metadata.channels), np.uint8)
+        self.observation_space = metadata.observation_space
         self.action_space = metadata.actions.gym_space
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple:
         super().reset(seed=seed)
-        return np.zeros(self.observation_space.shape, np.uint8), {}
+        return self._blank(), {}
 
     def step(self, action: Any) -> tuple:
-        return np.zeros(self.observation_space.shape, np.uint8), 0.0, True, False, {}
+        return self._blank(), 0.0, True, False, {}
+
+    def _blank(self) -> Any:
+        space = self.observation_space
+        if isinstance(space, gym.spaces.Dict):
+            return {k: np.zeros(s.shape, s.dtype) for k, s in space.spaces.items()}
+        return np.zeros(space.shape, np.uint8)
 
 
 def new_model(metadata: ModelMetadata) -> BaseAlgorithm:
@@ -58,11 +64,13 @@ def new_model(metadata: ModelMetadata) -> BaseAlgorithm:
     """
     env = _SpacesEnv(metadata)
     network = metadata.neural_network
+    space = env.observation_space
     if metadata.training_algorithm == "sac":
-        kwargs = sac_policy_kwargs(network)
-        return SAC("CnnPolicy", env, policy_kwargs=kwargs, buffer_size=1, device="cpu")
-    kwargs = {**policy_kwargs(network), "ortho_init": False}
-    return PPO("CnnPolicy", env, policy_kwargs=kwargs, n_steps=2, batch_size=2, device="cpu")
+        kwargs = sac_policy_kwargs(network, space)
+        return SAC(policy_type(space), env, policy_kwargs=kwargs, buffer_size=1, device="cpu")
+    kwargs = {**policy_kwargs(network, space), "ortho_init": False}
+    return PPO(policy_type(space), env, policy_kwargs=kwargs, n_steps=2, batch_size=2,
+               device="cpu")  # fmt: skip
 
 
 def read_checkpoint_tensors(zip_bytes: bytes) -> dict[str, Any]:

@@ -16,12 +16,12 @@ from dataclasses import asdict, dataclass, field
 import cv2
 import numpy as np
 
-from racing.env import RacingEnv
+from racing.env import Observation, RacingEnv
 from racing.rules import STATUS_LABELS, LapRecord, Status
 from racing.sensors import ground_for
 from racing.simtrace import TraceRow
 from racing.video import ChaseView
-from training.rollout.envs import EnvSpec, FrameGrabber
+from training.rollout.envs import EnvSpec, FrameGrabber, camera_image
 
 MIN_LAPS, MAX_LAPS = 3, 5
 DEFAULT_RESETS = 10_000
@@ -223,7 +223,7 @@ def _rules(data: dict):
 
 
 def evaluate(
-    policy: Callable[[np.ndarray], object],
+    policy: Callable[[Observation], object],
     spec: EnvSpec,
     settings: EvaluationSettings,
     *,
@@ -232,7 +232,9 @@ def evaluate(
     on_frame: Callable[[dict], None] | None = None,
     frames_wanted: Callable[[], bool] | None = None,
 ) -> EvaluationReport:
-    """Drive ``policy`` (observation → action) for ``settings.laps`` laps from the start line.
+    """Drive ``policy`` (observation → action) for ``settings.laps`` laps from the start line,
+    in ``spec``'s race (its boxes or bots on the track and in the video; an observation is the
+    camera image, or a dict of the camera and the LIDAR).
 
     ``on_progress`` gets ``{"lap", "laps_done", "progress", "frame"?}`` about 15 times per
     simulated second of driving; ``should_stop`` is polled every step (a stopped evaluation
@@ -255,7 +257,7 @@ def evaluate(
             finished = info["laps"][-1] if info.get("lap_finished") and info["laps"] else None
             trace.add(info["trace"], finished=finished, done=terminated or truncated)
             if video is not None and chase is not None:
-                video.add(chase.render(env.pose, env.objects), obs[..., 0])
+                video.add(chase.render(env.pose, env.objects), camera_image(obs)[..., 0])
             if (
                 grabber is not None
                 and on_frame is not None
@@ -294,10 +296,10 @@ def evaluate(
     )
 
 
-def sb3_policy(model) -> Callable[[np.ndarray], object]:
-    """A deterministic policy function from an SB3 model."""
+def sb3_policy(model) -> Callable[[Observation], object]:
+    """A deterministic policy function from an SB3 model (image or Dict observations)."""
 
-    def act(obs: np.ndarray):
+    def act(obs: Observation):
         action, _ = model.predict(obs, deterministic=True)
         return action
 

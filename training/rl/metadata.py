@@ -9,9 +9,10 @@ Keys (deepracer-spec §2.3) and what happens when one is missing:
   missing it is read from the shape of ``action_space`` (a list is DeepRacer's default,
   ``discrete``; a dict of ranges can only be ``continuous``).
 - ``training_algorithm``: ``clipped_ppo`` (default) | ``sac``; SAC needs a continuous space.
-- ``sensor``: exactly one camera, ``FRONT_FACING_CAMERA`` (default) or ``STEREO_CAMERAS``.
-  DeepRacer's older names for the single camera, ``OBSERVATION`` and ``LEFT_CAMERA``, are read
-  as ``FRONT_FACING_CAMERA``. LIDAR sensors are refused: the simulator has no LIDAR yet.
+- ``sensor``: exactly one camera, ``FRONT_FACING_CAMERA`` (default) or ``STEREO_CAMERAS``,
+  optionally with one LIDAR: ``LIDAR``, ``SECTOR_LIDAR`` or ``DISCRETIZED_SECTOR_LIDAR``
+  (deepracer-spec §4; stored camera first). DeepRacer's older names for the single camera,
+  ``OBSERVATION`` and ``LEFT_CAMERA``, are read as ``FRONT_FACING_CAMERA``.
 - ``neural_network``: one of :data:`training.rl.policies.NETWORKS` (DeepRacer's three CNNs and
   Racecraft's lean CNN); default ``DEEP_CONVOLUTIONAL_NETWORK_SHALLOW`` as in DeepRacer.
 - ``version``: SimApp physics version, kept as the string given (a number is turned into its
@@ -28,9 +29,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import gymnasium as gym
+import numpy as np
+
 from racing.actions import ActionSpaceError, ActionSpec
+from racing.lidar import LidarSensor
 from racing.sensors import (
-    LIDAR_SENSORS,
     SENSOR_CAMERA,
     SENSOR_STEREO,
     SensorError,
@@ -95,6 +99,22 @@ class ModelMetadata:
     def observation_shape(self) -> tuple[int, int, int]:
         """The policy's image input, channel-first: ``(C, 120, 160)``."""
         return (self.channels, 120, 160)
+
+    @property
+    def lidar(self) -> str | None:
+        """The LIDAR sensor's id (``LIDAR``, ``SECTOR_LIDAR``, ``DISCRETIZED_SECTOR_LIDAR``) or
+        None for a camera-only model."""
+        return self.sensor[1] if len(self.sensor) > 1 else None
+
+    @property
+    def observation_space(self) -> gym.spaces.Space:
+        """The simulator's observation space for these sensors (as :class:`racing.env.RacingEnv`
+        builds it): the camera ``Box(0, 255, (120, 160, C), uint8)``, or with a LIDAR a ``Dict``
+        keyed by the sensor ids."""
+        image = gym.spaces.Box(0, 255, (120, 160, self.channels), np.uint8)
+        if self.lidar is None:
+            return image
+        return gym.spaces.Dict({self.camera: image, self.lidar: LidarSensor(self.lidar).space})
 
     def to_json(self) -> dict[str, Any]:
         """DeepRacer's dict (``action_space`` with an ``index`` per discrete action)."""
@@ -223,13 +243,6 @@ def _sensors(value: Any) -> tuple[str, ...]:
     if not isinstance(value, list | tuple) or not all(isinstance(s, str) for s in value):
         raise MetadataError("sensor", "must be a list of sensor names")
     names = [SENSOR_ALIASES.get(s.strip().upper(), s.strip().upper()) for s in value]
-    lidars = [s for s in names if s in LIDAR_SENSORS]
-    if lidars:
-        raise MetadataError(
-            "sensor",
-            f"{lidars[0]} is not supported: the Racecraft simulator has no LIDAR yet; "
-            "use FRONT_FACING_CAMERA or STEREO_CAMERAS on its own",
-        )
     try:
         return validate_sensors(names)
     except SensorError as exc:

@@ -4,6 +4,12 @@ Every network takes the car's 160×120 grayscale camera (``C`` channels: 1 mono,
 SB3 hands it over: ``(batch, C, 120, 160)`` floats in 0..1. The lean default averages 2×2
 pixels inside the network first (80×60): on a 2-core CPU it trains about 10× faster than
 DeepRacer's 3-layer CNN at full size, yet the exported model still takes 160×120 images.
+
+With a LIDAR the observation is a ``Dict`` keyed by DeepRacer's sensor ids and the policy is
+SB3's ``MultiInputPolicy`` with :class:`CameraLidarExtractor`: the camera network as above and,
+as DeepRacer builds it (deepracer-spec §4), a LIDAR embedder of two 256-unit dense layers,
+their features concatenated. A camera-only model keeps :class:`CameraExtractor` and its
+weight names, so existing checkpoints and exports are unchanged.
 """
 
 from __future__ import annotations
@@ -87,20 +93,70 @@ class CameraExtractor(BaseFeaturesExtractor):
         return self.linear(self.cnn(observations))
 
 
-def policy_kwargs(network: str = LEAN) -> dict:
-    """SB3 ``policy_kwargs`` for a network name (model_metadata.json's ``neural_network``)."""
+LIDAR_EMBEDDER_UNITS = (256, 256)
+"""DeepRacer's LIDAR embedder: two dense layers (ReLU) over the LIDAR vector."""
+
+
+def split_sensors(space: gym.spaces.Dict) -> tuple[str, str]:
+    """The camera's key and the LIDAR's key of a Dict observation space (the image is the
+    3-dimensional subspace). Raises :class:`NetworkError` for any other layout."""
+    images = [k for k, s in space.spaces.items() if len(s.shape or ()) == 3]
+    vectors = [k for k, s in space.spaces.items() if len(s.shape or ()) == 1]
+    if len(images) != 1 or len(vectors) != 1 or len(space.spaces) != 2:
+        raise NetworkError(
+            f"a Dict observation must hold one camera image and one LIDAR vector; got {space}"
+        )
+    return images[0], vectors[0]
+
+
+class CameraLidarExtractor(BaseFeaturesExtractor):
+    """The camera network (:class:`CameraExtractor`) and DeepRacer's LIDAR embedder side by
+    side; the features are both concatenated (camera first)."""
+
+    def __init__(self, observation_space: gym.spaces.Dict, network: str = LEAN) -> None:
+        camera_key, lidar_key = split_sensors(observation_space)
+        camera = CameraExtractor(observation_space.spaces[camera_key], network)
+        size = int(observation_space.spaces[lidar_key].shape[0])
+        layers: list[nn.Module] = []
+        for units in LIDAR_EMBEDDER_UNITS:
+            layers += [nn.Linear(size, units), nn.ReLU()]
+            size = units
+        super().__init__(observation_space, features_dim=camera.features_dim + size)
+        self.camera_key, self.lidar_key = camera_key, lidar_key
+        self.camera = camera
+        self.lidar = nn.Sequential(*layers)
+        self.network = network
+
+    def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        return torch.cat(
+            [self.camera(observations[self.camera_key]), self.lidar(observations[self.lidar_key])],
+            dim=1,
+        )
+
+
+def policy_type(observation_space: gym.spaces.Space | None) -> str:
+    """SB3's policy name for an observation space: ``MultiInputPolicy`` for camera + LIDAR."""
+    return "MultiInputPolicy" if isinstance(observation_space, gym.spaces.Dict) else "CnnPolicy"
+
+
+def policy_kwargs(network: str = LEAN, observation_space: gym.spaces.Space | None = None) -> dict:
+    """SB3 ``policy_kwargs`` for a network name (model_metadata.json's ``neural_network``) and
+    the observation space (a ``Dict`` one adds the LIDAR embedder)."""
     if network not in SPECS:
         raise NetworkError(f"unknown network {network!r}; choose from {NETWORKS}")
+    lidar = isinstance(observation_space, gym.spaces.Dict)
     return {
-        "features_extractor_class": CameraExtractor,
+        "features_extractor_class": CameraLidarExtractor if lidar else CameraExtractor,
         "features_extractor_kwargs": {"network": network},
         "net_arch": {"pi": [], "vf": []} if network in DIRECT_HEADS else {"pi": [64], "vf": [64]},
         "normalize_images": True,
     }
 
 
-def sac_policy_kwargs(network: str = LEAN) -> dict:
-    """SB3 ``policy_kwargs`` of SAC for a network name."""
-    kwargs = policy_kwargs(network)
+def sac_policy_kwargs(
+    network: str = LEAN, observation_space: gym.spaces.Space | None = None
+) -> dict:
+    """SB3 ``policy_kwargs`` of SAC for a network name and observation space."""
+    kwargs = policy_kwargs(network, observation_space)
     kwargs["net_arch"] = {"pi": [] if network in DIRECT_HEADS else [64], "qf": [64]}
     return kwargs

@@ -25,6 +25,7 @@ from training.rl.algorithms import (
     build_model,
     load_model,
     plan_rollout_steps,
+    resolve_device,
     set_torch_threads,
 )
 from training.rl.hyperparams import Hyperparameters
@@ -62,6 +63,8 @@ class TrainingConfig:
     """The best evaluation progress so far (a resumed model's): an iteration is "best", and
     replaces the best checkpoint, only when it does better. None: the first one is best."""
     torch_threads: int = 2
+    device: str = "auto"
+    """Where the trainer's networks live (:func:`~training.rl.algorithms.resolve_device`)."""
 
 
 @dataclass
@@ -134,6 +137,17 @@ class TrainingSummary:
     elapsed_s: float
 
 
+def evaluation_spec(config: TrainingConfig) -> EnvSpec:
+    """The env of evaluation episodes: the training env, or from the start line for a
+    several-lap evaluation."""
+    if config.eval_laps > 1 or config.eval_from_start_line:
+        return EnvSpec.from_json(
+            {**config.spec.to_json(), "start": "start_line", "alternate_direction": False,
+             "rules": {**config.spec.rules, "laps": config.eval_laps}}
+        )  # fmt: skip
+    return config.spec
+
+
 class _StepWatcher(BaseCallback):
     """Collects what workers report each step and stops rollouts when asked to."""
 
@@ -169,6 +183,7 @@ class TrainingLoop:
         self.rollout_done_at = 0.0
         self.longest_seen = 0  # steps of the longest episode seen so far, finished or not
         set_torch_threads(config.torch_threads)
+        device = resolve_device(config.device)  # before any process starts: fail fast
         self.venv: VecEnv = config.rollouts.make(
             config.spec,
             config.num_envs,
@@ -176,14 +191,8 @@ class TrainingLoop:
             reward_function=config.reward_function,
             phase="training",
         )
-        eval_spec = config.spec
-        if config.eval_laps > 1 or config.eval_from_start_line:
-            eval_spec = EnvSpec.from_json(
-                {**config.spec.to_json(), "start": "start_line", "alternate_direction": False,
-                 "rules": {**config.spec.rules, "laps": config.eval_laps}}
-            )  # fmt: skip
         self.eval_venv: VecEnv = LocalRollouts(num_workers=1).make(
-            eval_spec,
+            evaluation_spec(config),
             config.eval_episodes,
             reward_source=config.reward_source,
             reward_function=config.reward_function,
@@ -198,6 +207,7 @@ class TrainingLoop:
                 config.hyperparameters,
                 network=config.network,
                 seed=config.seed,
+                device=device,
             )
         else:
             self.model = build_model(
@@ -206,6 +216,7 @@ class TrainingLoop:
                 config.hyperparameters,
                 network=config.network,
                 seed=config.seed,
+                device=device,
             )
 
     # -------------------------------------------------------------------- step bookkeeping
@@ -353,5 +364,6 @@ class TrainingLoop:
 
 
 def train(config: TrainingConfig, hooks: TrainingHooks | None = None) -> TrainingSummary:
-    """Train until ``config.max_minutes`` pass or ``hooks.should_stop()`` says so."""
+    """Train until ``config.max_minutes`` pass or ``hooks.should_stop()`` says so, stepping the
+    envs from here (jobs call :func:`training.rl.streamed.train`, which picks the way)."""
     return TrainingLoop(config, hooks).run()

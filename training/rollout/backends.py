@@ -89,3 +89,32 @@ class RedisRollouts:
             prefix=self.prefix,
             phase=phase,
         )
+
+
+@dataclass(frozen=True)
+class StreamRollouts:
+    """Simulation workers that own their episodes (:mod:`training.rollout.streams`): ``workers``
+    of them, each started by ``launch`` (a Celery task on the ``simulation`` queue), or as
+    processes of this machine when ``launch`` is None, all talking to the trainer through the
+    Redis at ``redis_url``. The training loop drives PPO this way; SAC, which learns as it
+    drives, and trusted in-process rewards keep the lockstep envs of :meth:`make`."""
+
+    redis_url: str
+    workers: int = 2
+    launch: LaunchWorker | None = None
+    prefix: str = ""
+    streamed = True
+
+    def make(
+        self,
+        spec: EnvSpec,
+        num_envs: int,
+        *,
+        reward_source: str | None,
+        reward_function: RewardCallable | None,
+        phase: str,
+    ) -> VecEnv:
+        return LocalRollouts(num_workers=self.workers).make(
+            spec, num_envs, reward_source=reward_source, reward_function=reward_function,
+            phase=phase,
+        )  # fmt: skip

@@ -11,7 +11,7 @@ from __future__ import annotations
 import secrets
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -29,7 +29,13 @@ JPEG_QUALITY = 80
 
 @dataclass(frozen=True)
 class EnvSpec:
-    """Everything needed to build the same :class:`RacingEnv` in any process (JSON-able)."""
+    """Everything needed to build the same :class:`RacingEnv` in any process (JSON-able).
+
+    Multi-track training (as DeepRacer-for-Cloud's workers each drive their own track):
+    ``tracks`` lists ``(track, direction)`` pairs and env ``i`` of a run (counted across all
+    its workers) drives pair ``i % len(tracks)``: :meth:`for_env` gives its one-track spec.
+    Empty ``tracks``: every env drives ``track`` in ``direction``.
+    """
 
     track: str
     track_dirs: tuple[str, ...] = ()
@@ -39,11 +45,15 @@ class EnvSpec:
     start: str = "round_robin"
     alternate_direction: bool = False
     rules: dict = field(default_factory=dict)
+    race: dict = field(default_factory=dict)
+    """:meth:`racing.race.RaceConfig.to_dict` of the race (boxes, bots); empty = time trial."""
+    tracks: tuple[tuple[str, str], ...] = ()
 
     def to_json(self) -> dict:
         data = asdict(self)
         data["track_dirs"] = list(self.track_dirs)
         data["sensors"] = list(self.sensors)
+        data["tracks"] = [list(pair) for pair in self.tracks]
         return data
 
     @classmethod
@@ -51,7 +61,20 @@ class EnvSpec:
         data = dict(data)
         data["track_dirs"] = tuple(data.get("track_dirs", ()))
         data["sensors"] = tuple(data.get("sensors", ("FRONT_FACING_CAMERA",)))
+        data["tracks"] = tuple((str(t), str(d)) for t, d in data.get("tracks", ()))
         return cls(**data)
+
+    def track_list(self) -> tuple[tuple[str, str], ...]:
+        """Every ``(track, direction)`` the run's envs drive, in the order they are dealt."""
+        return self.tracks or ((self.track, self.direction),)
+
+    def for_env(self, index: int) -> EnvSpec:
+        """The spec env ``index`` (0-based, across all the run's workers) builds: its own
+        track and direction, and no ``tracks`` list (a one-track spec)."""
+        if not self.tracks:
+            return self
+        track, direction = self.tracks[index % len(self.tracks)]
+        return replace(self, track=track, direction=direction, tracks=())
 
     def make(
         self, reward_function: Callable[[dict], float] | None = None, **overrides
@@ -65,6 +88,7 @@ class EnvSpec:
             "start": self.start,
             "alternate_direction": self.alternate_direction,
             "rules": RaceRules(**self.rules),
+            "race": self.race or None,
             "reward_function": reward_function,
         }
         kwargs.update(overrides)
@@ -87,7 +111,7 @@ def episode_entry(
     ``start_time`` when the episode began (``start_s``, seconds), ``metric_time`` when it
     ended, ``elapsed_time_in_milliseconds`` the simulated time in between. ``car`` and
     ``env_episode`` say which car drove it and its episode number on that car, so the log
-    writer can find its sim-trace rows."""
+    writer can find its sim-trace rows; ``track`` the track it drove (multi-track training)."""
     elapsed_s = float(env.tracker.sim_time)
     return {
         "reward_score": int(round(total_reward)),
@@ -99,6 +123,7 @@ def episode_entry(
         "phase": phase,
         "car": car,
         "env_episode": env.episode,
+        "track": env.track.track_id,
         "completion_percentage": int(env.tracker.progress)
         if status != Status.LAP_COMPLETE.value
         else 100,
@@ -185,6 +210,21 @@ def compact_info(info: dict, *, truncated: bool = False, trace: list | None = No
     return out
 
 
+def camera_image(observation: np.ndarray | dict) -> np.ndarray:
+    """The camera image ``(120, 160, C)`` of an observation: the observation itself, or its
+    camera entry when a LIDAR makes it a dict."""
+    if isinstance(observation, dict):
+        return next(v for v in observation.values() if v.ndim == 3)
+    return observation
+
+
+def stack_observations(observations: list) -> np.ndarray | dict[str, np.ndarray]:
+    """One batch of env observations: an array, or a dict of arrays for Dict observations."""
+    if observations and isinstance(observations[0], dict):
+        return {k: np.stack([o[k] for o in observations]) for k in observations[0]}
+    return np.stack(observations)
+
+
 class FrameGrabber:
     """Encodes JPEG frames of one env (the car's camera and the chase view), 15 fps at most."""
 
@@ -194,7 +234,7 @@ class FrameGrabber:
         self._last = 0.0
         self._chase = None
 
-    def grab(self, observation: np.ndarray) -> dict | None:
+    def grab(self, observation: np.ndarray | dict) -> dict | None:
         now = time.monotonic()
         if now - self._last < self.interval_s:
             return None
@@ -204,7 +244,7 @@ class FrameGrabber:
             from racing.video import ChaseView
 
             self._chase = ChaseView(ground_for(self.env.track, resolution=0.01, rgb=True))
-        camera = observation[..., 0]
+        camera = camera_image(observation)[..., 0]
         camera = cv2.resize(camera, (320, 240), interpolation=cv2.INTER_NEAREST)
         chase = cv2.cvtColor(self._chase.render(self.env.pose, self.env.objects), cv2.COLOR_RGB2BGR)
         params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]
@@ -241,16 +281,16 @@ class EnvRunner:
         self.frames = FrameGrabber(envs[0])
         self.want_frames = False
 
-    def reset(self, seeds: list[int | None], options: list[dict] | None = None) -> np.ndarray:
+    def reset(self, seeds: list[int | None], options: list[dict] | None = None):
         obs = []
         options = options or [{}] * len(self.envs)
         for env, book, seed, opts in zip(self.envs, self.books, seeds, options, strict=True):
             o, _ = env.reset(seed=seed, options=_safe_options(opts))
             book.reset()
             obs.append(o)
-        return np.stack(obs)
+        return stack_observations(obs)
 
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+    def step(self, actions: np.ndarray) -> tuple[Any, np.ndarray, np.ndarray, list[dict]]:
         n = len(self.envs)
         obs_out, rewards, dones, infos = [], np.zeros(n, np.float32), np.zeros(n, bool), []
         for i, (env, book) in enumerate(zip(self.envs, self.books, strict=True)):
@@ -275,7 +315,7 @@ class EnvRunner:
             rewards[i] = reward
             dones[i] = done
             infos.append(compact)
-        return np.stack(obs_out), rewards, dones, infos
+        return stack_observations(obs_out), rewards, dones, infos
 
     def close(self) -> None:
         for env in self.envs:

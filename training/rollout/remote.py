@@ -19,7 +19,13 @@ from typing import Any
 import redis
 
 from training.rollout.envs import EnvSpec
-from training.rollout.vecenv import ROLLOUT_LIMITS, STEP_TIMEOUT_S, RolloutError, _WorkerVecEnv
+from training.rollout.vecenv import (
+    ROLLOUT_LIMITS,
+    STEP_TIMEOUT_S,
+    RolloutError,
+    _WorkerVecEnv,
+    first_envs,
+)
 from training.sandbox import SandboxCrashed, SandboxProcess, checked
 from training.sandbox.protocol import ProtocolError, decode, encode
 
@@ -157,10 +163,11 @@ class RemoteVecEnv(_WorkerVecEnv):
         self.client = _client(redis_url)
         session = uuid.uuid4().hex
         self.slots = [RemoteSlot(self.client, prefix, session, i) for i in range(num_slots)]
-        for i, size in enumerate(self.sizes):
+        for i, (first, size) in enumerate(zip(first_envs(self.sizes), self.sizes, strict=True)):
             launch(
                 redis_url=redis_url, prefix=prefix, session=session, slot=i,
-                args={"spec": spec.to_json(), "num_envs": size, "phase": phase},
+                args={"spec": spec.to_json(), "num_envs": size, "phase": phase,
+                      "first_env": first},
                 reward_source=reward_source,
             )  # fmt: skip
         started = time.monotonic()

@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from training.rollout.envs import EnvRunner, EnvSpec
@@ -35,6 +36,12 @@ INFO_KEYS = frozenset(
      "terminal_observation", "episode_entry"}
 )  # fmt: skip
 MAX_FRAME_BYTES = 4 << 20
+
+
+def first_envs(sizes: list[int]) -> list[int]:
+    """The index of each worker's first env in the run (workers host ``sizes[i]`` envs):
+    with :meth:`EnvSpec.for_env`, what tells a worker which tracks its envs drive."""
+    return [sum(sizes[:i]) for i in range(len(sizes))]
 
 
 class RolloutError(RuntimeError):
@@ -80,7 +87,7 @@ class LocalVecEnv(_RunnerVecEnv):
     def __init__(
         self, spec: EnvSpec, num_envs: int, reward_function: Callable[[dict], float] | None
     ) -> None:
-        envs = [spec.make(reward_function) for _ in range(num_envs)]
+        envs = [spec.for_env(i).make(reward_function) for i in range(num_envs)]
         self.runner = EnvRunner(envs)
         super().__init__(num_envs, envs[0].observation_space, envs[0].action_space)
 
@@ -106,7 +113,8 @@ def worker_prepare(args: dict) -> EnvRunner:
 
     cv2.setNumThreads(1)  # no thread pool: the locked-down worker may not start threads
     spec = EnvSpec.from_json(args["spec"])
-    envs = [spec.make(None) for _ in range(args["num_envs"])]
+    first = int(args.get("first_env", 0))  # this worker's envs, counted across the run
+    envs = [spec.for_env(first + i).make(None) for i in range(args["num_envs"])]
     return EnvRunner(envs, phase=args.get("phase", "training"))
 
 
@@ -140,9 +148,36 @@ class _WorkerVecEnv(_RunnerVecEnv):
     def _exchange(self, messages: list[dict]) -> list[dict]:
         raise NotImplementedError
 
-    def _obs(self, part: Any, size: int) -> np.ndarray:
-        shape = (size, *self.observation_space.shape)
-        return checked.array(part, "observations", dtype=np.uint8, shape=shape)
+    def _obs(self, part: Any, size: int) -> Any:
+        """``size`` observations from a worker, checked against the observation space: an
+        image array, or (camera + LIDAR) a dict of one array per sensor with finite values."""
+        space = self.observation_space
+        if not isinstance(space, spaces.Dict):
+            shape = (size, *space.shape)
+            return checked.array(part, "observations", dtype=np.uint8, shape=shape)
+        part = checked.mapping(part, "observations")
+        if set(part) != set(space.spaces):
+            raise checked.Malformed(f"observations: expected the keys {sorted(space.spaces)}")
+        out = {}
+        for key, sub in space.spaces.items():
+            value = checked.array(part[key], f"observations {key}", dtype=sub.dtype,
+                                  shape=(size, *sub.shape))  # fmt: skip
+            if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+                raise checked.Malformed(f"observations {key}: values must be finite")
+            out[key] = value
+        return out
+
+    @staticmethod
+    def _concat(parts: list) -> Any:
+        if parts and isinstance(parts[0], dict):
+            return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        return np.concatenate(parts)
+
+    @staticmethod
+    def _first(obs: Any) -> Any:
+        if isinstance(obs, dict):
+            return {k: v[0] for k, v in obs.items()}
+        return obs[0]
 
     def reset(self) -> np.ndarray:
         seeds, options, msgs, start = self._seeds, self._options, [], 0
@@ -160,7 +195,7 @@ class _WorkerVecEnv(_RunnerVecEnv):
             ]
         except checked.Malformed as exc:
             raise RolloutError(f"a simulation worker sent malformed data ({exc})") from None
-        return np.concatenate(parts)
+        return self._concat(parts)
 
     def step_wait(self):
         actions = self._actions
@@ -183,7 +218,7 @@ class _WorkerVecEnv(_RunnerVecEnv):
                 infos.extend(self._info(item) for item in info)
         except checked.Malformed as exc:
             raise RolloutError(f"a simulation worker sent malformed data ({exc})") from None
-        return np.concatenate(obs), np.concatenate(rewards), np.concatenate(dones), infos
+        return self._concat(obs), np.concatenate(rewards), np.concatenate(dones), infos
 
     def _info(self, item: Any) -> dict:
         """One env's compact info (:func:`training.rollout.envs.compact_info`), checked."""
@@ -201,8 +236,12 @@ class _WorkerVecEnv(_RunnerVecEnv):
         if type(info.get("TimeLimit.truncated", True)) is not bool:
             raise checked.Malformed("info TimeLimit.truncated: expected a bool")
         if info.get("terminal_observation") is not None:
-            term = self._obs(info["terminal_observation"][None], 1)
-            info["terminal_observation"] = term[0]
+            term = info["terminal_observation"]
+            if isinstance(term, dict):
+                term = {k: v[None] if isinstance(v, np.ndarray) else v for k, v in term.items()}
+            elif isinstance(term, np.ndarray):
+                term = term[None]
+            info["terminal_observation"] = self._first(self._obs(term, 1))
         if info.get("episode_entry") is not None:
             entry = checked.mapping(info["episode_entry"], "episode entry")
             checked.scalars(list(entry.values()), "episode entry", limit=64)
@@ -251,12 +290,17 @@ class SandboxedVecEnv(_WorkerVecEnv):
         self.sizes = sizes
         self.workers: list[SandboxProcess] = []
         try:
-            for size in sizes:
+            for first, size in zip(first_envs(sizes), sizes, strict=True):
                 worker = SandboxProcess(
                     target="training.rollout.vecenv:worker_main",
                     prepare="training.rollout.vecenv:worker_prepare",
                     reward_source=reward_source,
-                    args={"spec": spec.to_json(), "num_envs": size, "phase": phase},
+                    args={
+                        "spec": spec.to_json(),
+                        "num_envs": size,
+                        "phase": phase,
+                        "first_env": first,
+                    },
                     limits=limits,
                 )
                 worker.start()

@@ -7,6 +7,9 @@ a message a user can act on. Side effects on other processes start only after th
 - :mod:`~training.services.jobs`: the one state machine of training and evaluation jobs.
 - :mod:`~training.services.checks`: tracks, configurations, reward functions, names, quotas.
 - :mod:`~training.services.downloads`: what a user downloads.
+- :mod:`~training.services.rewards`: reward validations on a worker, and the passes that let
+  the web save a reward function without running it.
+- :mod:`~training.services.background`: model imports and car exports on a worker.
 - :mod:`~training.services.tracks`: importing a track file from the console.
 
 Reads go through :mod:`training.selectors`.
@@ -17,6 +20,7 @@ from training.services.checks import (
     MAX_MINUTES,
     MIN_MINUTES,
     ModelSpec,
+    check_extra_tracks,
     check_model_spec,
     check_name,
     check_race_type,
@@ -48,6 +52,13 @@ from training.services.models import (
     model_metadata,
     model_update_reward,
 )
+from training.services.racing import (
+    SUPPORTED_RACE_TYPES,
+    parse_object_positions,
+    race_config,
+    race_settings,
+    sensor_advice,
+)
 from training.services.tracks import TrackCheck, default_track_id, track_check, track_import
 
 __all__ = [
@@ -56,9 +67,15 @@ __all__ = [
     "ModelSpec",
     "RewardRejected",
     "ServiceError",
+    "check_extra_tracks",
     "check_model_spec",
     "check_name",
     "check_race_type",
+    "SUPPORTED_RACE_TYPES",
+    "parse_object_positions",
+    "race_config",
+    "race_settings",
+    "sensor_advice",
     "check_reward",
     "check_track",
     "evaluation_start",

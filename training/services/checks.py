@@ -7,21 +7,28 @@ message on.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from django.conf import settings
 
 from racing.track import Track, TrackError
 from racing.tracks import TrackCatalog, UnknownTrackError
 from training.errors import RewardRejected, ServiceError
-from training.models import MODEL_NAME_RE, Direction, RaceType, RacingModel
+from training.models import MODEL_NAME_RE, Direction, RacingModel
 from training.rewards.validation import validate_reward_function
 from training.rl.hyperparams import HyperparameterError, parse_hyperparameters
 from training.rl.metadata import MetadataError, ModelMetadata, build_metadata
 from training.sandbox import MAX_SOURCE_CHARS
+from training.services.racing import (  # noqa: F401 - the race rules live in racing
+    SUPPORTED_RACE_TYPES,
+    check_race_type,
+    race_settings,
+)
 
 MIN_MINUTES, MAX_MINUTES = 1, 1440
-SUPPORTED_RACE_TYPES = (RaceType.TIME_TRIAL,)
+MAX_TRAINING_TRACKS = 4
+"""Tracks one model may train on at once (multi-track training): each gets at least two of a
+run's 8 cars."""
 
 
 def track_catalog() -> TrackCatalog:
@@ -45,6 +52,9 @@ class ModelSpec:
     direction: str
     race_type: str
     max_minutes: int
+    race_config: dict = field(default_factory=dict)
+    """The race's settings (:func:`training.services.racing.race_settings`); {} in a time
+    trial."""
 
 
 def check_track(track_id: str, direction: str) -> Track:
@@ -60,16 +70,44 @@ def check_track(track_id: str, direction: str) -> Track:
     return track.in_direction(direction)
 
 
-def check_race_type(race_type: str) -> None:
-    """A race type the simulator can run."""
-    if race_type not in RaceType.values:
-        raise ServiceError(f"unknown race type {race_type!r}", field="race_type")
-    if race_type not in SUPPORTED_RACE_TYPES:
+def check_extra_tracks(track_id: str, direction: str, extra_tracks: object) -> list[list[str]]:
+    """The tracks a model trains on beside its own (multi-track training), as stored:
+    ``[[track_id, direction], ...]``. Each must be a track the model may drive in that
+    direction, none twice (its own included), at most :data:`MAX_TRAINING_TRACKS` in all."""
+    if not extra_tracks:
+        return []
+    if not isinstance(extra_tracks, list | tuple):
         raise ServiceError(
-            f"{RaceType(race_type).label} needs obstacles and bot cars, which the simulator "
-            "does not have yet; choose Time trial",
-            field="race_type",
+            "the extra tracks are a list of (track, direction)", field="extra_tracks"
         )
+    pairs: list[list[str]] = []
+    seen = {(track_id, direction)}
+    for item in extra_tracks:
+        if not isinstance(item, list | tuple) or len(item) != 2:
+            raise ServiceError(
+                "each extra track is a (track, direction) pair", field="extra_tracks"
+            )
+        extra, extra_direction = (str(v) for v in item)
+        try:
+            check_track(extra, extra_direction)
+        except ServiceError as exc:
+            raise ServiceError(
+                f"{exc.message} (extra track {extra})", field="extra_tracks"
+            ) from None
+        if (extra, extra_direction) in seen:
+            raise ServiceError(
+                f"{extra} ({extra_direction}) is chosen twice; pick each track once",
+                field="extra_tracks",
+            )
+        seen.add((extra, extra_direction))
+        pairs.append([extra, extra_direction])
+    if len(seen) > MAX_TRAINING_TRACKS:
+        raise ServiceError(
+            f"a model trains on at most {MAX_TRAINING_TRACKS} tracks at once; this one has "
+            f"{len(seen)}",
+            field="extra_tracks",
+        )
+    return pairs
 
 
 def check_model_spec(
@@ -83,10 +121,12 @@ def check_model_spec(
     neural_network: str,
     hyperparameters: dict | None,
     max_minutes: int,
+    race_config: dict | None = None,
 ) -> ModelSpec:
-    """The whole configuration of a new model, checked; raises on the first problem."""
+    """The whole configuration of a new model, checked; raises on the first problem.
+    ``race_config`` holds the settings of an object-avoidance or head-to-bot race."""
     check_track(track_id, direction)
-    check_race_type(race_type)
+    race = race_settings(race_type, race_config)
     try:
         metadata = build_metadata(
             action_space=action_space,
@@ -104,7 +144,7 @@ def check_model_spec(
         raise ServiceError(
             f"the stop condition is {MIN_MINUTES}-{MAX_MINUTES} minutes", field="max_minutes"
         )
-    return ModelSpec(metadata, hp.to_json(), track_id, direction, race_type, max_minutes)
+    return ModelSpec(metadata, hp.to_json(), track_id, direction, race_type, max_minutes, race)
 
 
 def _metadata_field(field: str) -> str:

@@ -15,8 +15,8 @@ from training.interchange.export import (
 )
 from training.models import EvaluationJob, RacingModel
 from training.rl.checkpoints import CheckpointError, load_checkpoint
-from training.services.models import model_metadata
-from training.storage import ObjectNotFound, StoreError
+from training.services.models import model_metadata, store_failure
+from training.storage import ObjectNotFound, StoreError, StoreUnavailable
 from training.store import get_store, keys_for
 
 
@@ -34,11 +34,20 @@ def car_model_archive(model: RacingModel) -> bytes:
         return store.get_bytes(keys.car_export)
     except ObjectNotFound:
         pass
+    except StoreUnavailable:
+        raise  # the page answers 503 "try again" (console/middleware.py)
+    except StoreError as exc:
+        raise store_failure(exc, "the car model could not be read") from None
     try:
         data = build_car_archive(model_metadata(model), _best_checkpoint(model))
     except (CarExportError, CheckpointError) as exc:
         raise ServiceError(f"this model cannot be written for the car: {exc}") from None
-    store.put_bytes(keys.car_export, data, "application/gzip")
+    try:
+        store.put_bytes(keys.car_export, data, "application/gzip")
+    except StoreUnavailable:
+        raise
+    except StoreError as exc:
+        raise store_failure(exc, "the car model could not be saved") from None
     return data
 
 
@@ -56,7 +65,7 @@ def _best_checkpoint(model: RacingModel) -> bytes:
     try:
         return get_store().get_bytes(keys_for(model.pk).best)
     except StoreError as exc:
-        raise ServiceError(f"the model's checkpoint could not be read: {exc}") from None
+        raise store_failure(exc, "the model's checkpoint could not be read") from None
 
 
 def _collect(model: RacingModel, keep: Callable[[str], bool], what: str) -> dict[str, bytes]:
@@ -69,7 +78,7 @@ def _collect(model: RacingModel, keep: Callable[[str], bool], what: str) -> dict
             if keep(key[len(prefix) :])
         }
     except StoreError as exc:
-        raise ServiceError(f"the model's {what} could not be read: {exc}") from None
+        raise store_failure(exc, f"the model's {what} could not be read") from None
 
 
 def _in_virtual_model(name: str) -> bool:
@@ -115,5 +124,5 @@ def evaluation_video(evaluation: EvaluationJob) -> Media:
     try:
         size = store.stat_size(key)
     except StoreError as exc:
-        raise ServiceError(f"the video could not be read: {exc}") from None
+        raise store_failure(exc, "the video could not be read") from None
     return Media(size, lambda start, length: store.get_range(key, start, length))

@@ -36,12 +36,12 @@ from training.models import (
     RUNNING_JOB_STATUSES,
     EvaluationJob,
     JobStatus,
-    RaceType,
     RacingModel,
     TrainingJob,
 )
 from training.rl.evaluation import EvaluationError, EvaluationSettings
-from training.services.checks import SUPPORTED_RACE_TYPES, check_track, limit
+from training.services.checks import check_track, limit
+from training.services.racing import race_settings
 from training.signals import evaluation_finished
 
 log = logging.getLogger(__name__)
@@ -149,16 +149,24 @@ def model_settle(model: RacingModel, error: str = "") -> None:
     model.save(update_fields=["status", "error", "updated_at"])
 
 
+BROKER_DOWN_NOTE = (
+    "the task queue cannot be reached right now; the job stays queued and is sent to a worker "
+    "as soon as the queue is back (checked every two minutes)"
+)
+"""What the page says when a job was saved but its task could not be sent."""
+
+
 def _enqueue_after_commit(job: Job, task_name: str) -> None:
-    """Queue the job's Celery task once its row is committed; if queueing fails, the job is
-    failed at once instead of waiting forever."""
+    """Queue the job's Celery task once its row is committed. If the broker cannot be reached
+    the job stays QUEUED without a task id: the reaper (:func:`jobs_reap_orphans`) sends it
+    once the broker answers again, and ``job.dispatch_note`` (not stored) tells the caller."""
 
     def go() -> None:
         try:
             task_id = dispatch.send(task_name, job.pk)
-        except Exception as exc:  # noqa: BLE001 - any broker failure
-            log.exception("could not queue job %s", job.pk)
-            job_fail(job=job, error=f"the job could not be queued: {exc}")
+        except Exception:  # noqa: BLE001 - any broker failure: the reaper sends it later
+            log.warning("could not queue job %s; the reaper sends it later", job.pk, exc_info=True)
+            job.dispatch_note = BROKER_DOWN_NOTE
             return
         type(job).objects.filter(pk=job.pk).update(task_id=task_id or "")
 
@@ -193,21 +201,25 @@ def evaluation_start(
     user,
     track_id: str | None = None,
     direction: str | None = None,
-    race_type: str = RaceType.TIME_TRIAL,
+    race_type: str | None = None,
+    race_config: dict | None = None,
     laps: int = 3,
     off_track_penalty_s: float = 2.0,
     crash_penalty_s: float = 5.0,
     purpose: str = "user",
     enqueue: bool = True,
 ) -> EvaluationJob:
-    """Queue an evaluation of a trained model (3-5 laps, DeepRacer's penalties);
-    ``enqueue=False`` leaves it for the caller to run in its own process."""
+    """Queue an evaluation of a trained model (3-5 laps, DeepRacer's penalties) in a race of
+    ``race_type`` with ``race_config``'s boxes or bots (see :mod:`training.services.racing`;
+    ``race_type`` None: the model's own race and settings); ``enqueue=False`` leaves it for
+    the caller to run in its own process."""
     owned(model, user)
     track_id = track_id or model.track_id
     direction = direction or model.direction
     check_track(track_id, direction)
-    if race_type not in SUPPORTED_RACE_TYPES:
-        raise ServiceError("only time trials can be evaluated for now", field="race_type")
+    if race_type is None:
+        race_type, race_config = model.race_type, model.race_config
+    race = race_settings(race_type, race_config)
     try:
         EvaluationSettings(laps=laps, off_track_penalty_s=off_track_penalty_s,
                            crash_penalty_s=crash_penalty_s)  # fmt: skip
@@ -225,7 +237,7 @@ def evaluation_start(
             _check_job_quota(user)
         job = EvaluationJob.objects.create(
             model=model, track_id=track_id, direction=direction, race_type=race_type,
-            laps=laps, off_track_penalty_s=off_track_penalty_s,
+            race_config=race, laps=laps, off_track_penalty_s=off_track_penalty_s,
             crash_penalty_s=crash_penalty_s, purpose=purpose,
         )  # fmt: skip
         model.status = RacingModel.Status.EVALUATING

@@ -5,6 +5,20 @@ on. Creating, cloning and importing are all or nothing (:func:`_all_or_nothing`)
 written in one transaction and the files under the new model's folder; if the store fails
 (after its retries) the transaction is rolled back, the folder removed, and the user told that
 storage is unavailable and to try again - never a half-made model, never a 500.
+
+Reward functions: the web process runs no user code. How a reward function is checked before
+it is saved is the caller's choice (``reward_check``; the rule itself is
+:func:`training.services.rewards.reward_check_before_save`):
+
+- ``"passed"`` (the web console): a passed validation of the same source (line endings aside)
+  on the same track and direction, by the same user, within the last hour
+  (:func:`training.services.rewards.reward_validation_passed`; the Validate button's
+  validations count). Parsing errors are answered at once with their lines (parsing runs no
+  code); otherwise, without such a pass, :class:`ValidationNeeded` is raised and nothing is
+  saved: the view queues a validation on a worker, the page shows its progress and posts the
+  same form again once it passes (the form's data kept), or shows the errors on their lines.
+- ``"sandbox"`` (the command line, workers): the sandbox runs the function here and now.
+- ``"none"``: no check (imports, whose reward function is never run before training).
 """
 
 from __future__ import annotations
@@ -30,14 +44,16 @@ from training.rewards.examples import DEFAULT_EXAMPLE, example_source
 from training.rl.hyperparams import defaults_for
 from training.rl.metadata import ModelMetadata, build_metadata
 from training.services.checks import (
+    MAX_TRAINING_TRACKS,
+    check_extra_tracks,
     check_model_quota,
     check_model_spec,
     check_name,
-    check_reward,
     check_track,
     track_catalog,
 )
 from training.services.jobs import model_has_active_jobs, owned
+from training.services.rewards import reward_check_before_save
 from training.storage import StoreError, StoreUnavailable
 from training.store import get_store, keys_for
 
@@ -45,6 +61,18 @@ log = logging.getLogger(__name__)
 STORE_UNAVAILABLE = (
     "the model store is unavailable right now, so nothing was saved; try again in a minute"
 )
+
+
+def store_failure(exc: StoreError, what: str) -> ServiceError:
+    """A store failure as a user may read it: what could not be done, never the object key,
+    the store's folder or endpoint, nor the store's own words (those go to the log)."""
+    log.warning("store failure (%s): %s", what, exc)
+    if isinstance(exc, StoreUnavailable):
+        return ServiceError(f"{what}: the model store is unavailable now; try again in a minute")
+    return ServiceError(
+        f"{what}: the model store refused it; try again, and if it keeps failing tell the "
+        "administrator (the server's log says why)"
+    )
 
 
 @contextmanager
@@ -62,9 +90,10 @@ def _all_or_nothing() -> Iterator[list[int]]:
             except StoreError:
                 log.warning("could not clean up the store of model %s", model_id)
         if isinstance(exc, StoreUnavailable):
+            log.warning("store unavailable: %s", exc)
             raise ServiceError(STORE_UNAVAILABLE) from None
         if isinstance(exc, StoreError):
-            raise ServiceError(f"the model's files could not be written: {exc}") from None
+            raise store_failure(exc, "the model's files could not be written") from None
         raise
 
 
@@ -99,6 +128,8 @@ def training_params(model: RacingModel) -> str:
         "RACECRAFT_SEED": str(model.seed),
         "RACECRAFT_MAX_MINUTES": str(model.max_minutes),
     }
+    if model.extra_tracks:  # multi-track training: every track:direction the cars are dealt
+        lines["RACECRAFT_TRACKS"] = ",".join(f"{t}:{d}" for t, d in model.training_tracks)
     return "".join(f'{key}: "{value}"\n' for key, value in lines.items())
 
 
@@ -152,6 +183,22 @@ def _imported_environment(params: dict[str, str]) -> tuple[str, str, int | None,
     )
 
 
+def _imported_extra_tracks(params: dict[str, str], track_id: str, direction: str) -> list:
+    """The tracks a multi-track model was trained on beside ``track_id`` (its
+    ``RACECRAFT_TRACKS``), those installed here and valid; anything else is left out."""
+    extra = []
+    for item in params.get("RACECRAFT_TRACKS", "").split(",")[:MAX_TRAINING_TRACKS]:
+        track, _, track_direction = item.strip().partition(":")
+        pair = [track, track_direction or "native"]
+        if track and tuple(pair) != (track_id, direction):
+            try:
+                check_extra_tracks(track_id, direction, [*extra, pair])
+            except ServiceError:
+                continue
+            extra.append(pair)
+    return extra
+
+
 def model_metadata(model: RacingModel) -> ModelMetadata:
     """DeepRacer's ``model_metadata.json`` for the model."""
     return build_metadata(
@@ -170,6 +217,7 @@ def model_create(
     track_id: str,
     direction: str = "native",
     race_type: str = RaceType.TIME_TRIAL,
+    race_config: dict | None = None,
     sensors: list[str] | tuple[str, ...] = ("FRONT_FACING_CAMERA",),
     action_space: list | dict,
     algorithm: str = "clipped_ppo",
@@ -179,34 +227,46 @@ def model_create(
     max_minutes: int = 10,
     seed: int | None = None,
     validate_reward: bool = True,
+    reward_check: str = "sandbox",
+    extra_tracks: list | tuple = (),
 ) -> RacingModel:
-    """A new model, validated end to end (its reward function runs in the sandbox first)."""
+    """A new model, validated end to end; its reward function is checked on each of its
+    tracks as ``reward_check`` says (the module's docstring: ``"passed"`` from the web),
+    ``validate_reward=False`` is ``reward_check="none"``. ``extra_tracks``: ``(track_id,
+    direction)`` pairs trained on beside ``track_id`` (multi-track training,
+    :func:`check_extra_tracks`). Raises ServiceError, RewardRejected or ValidationNeeded (for
+    the first track without a passed validation: the page validates it and posts again)."""
     check_name(owner, name)
     if len(description) > 255:
         raise ServiceError("the description is at most 255 characters", field="description")
     check_model_quota(owner)
     spec = check_model_spec(
-        track_id=track_id, direction=direction, race_type=race_type, sensors=list(sensors),
-        action_space=action_space, algorithm=algorithm, neural_network=neural_network,
-        hyperparameters=hyperparameters, max_minutes=max_minutes,
+        track_id=track_id, direction=direction, race_type=race_type, race_config=race_config,
+        sensors=list(sensors), action_space=action_space, algorithm=algorithm,
+        neural_network=neural_network, hyperparameters=hyperparameters, max_minutes=max_minutes,
     )  # fmt: skip
-    if validate_reward:
-        check_reward(reward_function, track_id, direction)
+    extra = check_extra_tracks(track_id, direction, extra_tracks)
+    how = reward_check if validate_reward else "none"
+    for each_track, each_direction in [(spec.track_id, spec.direction), *extra]:
+        reward_check_before_save(user=owner, source=reward_function, track_id=each_track,
+                                 direction=each_direction, how=how)  # fmt: skip
     with _all_or_nothing() as created:
-        model = _create_row(owner, name, description, spec, reward_function, seed)
+        model = _create_row(owner, name, description, spec, reward_function, seed, extra)
         created.append(model.pk)
         _store_model_files(model)
     return model
 
 
-def _create_row(owner, name, description, spec, reward_function, seed) -> RacingModel:
+def _create_row(owner, name, description, spec, reward_function, seed, extra) -> RacingModel:
     return RacingModel.objects.create(
         owner=owner,
         name=name,
         description=description,
         track_id=spec.track_id,
         direction=spec.direction,
+        extra_tracks=extra,
         race_type=spec.race_type,
+        race_config=spec.race_config,
         sensors=list(spec.metadata.sensor),
         neural_network=spec.metadata.neural_network,
         action_space_type=spec.metadata.action_space_type,
@@ -233,12 +293,14 @@ def model_clone(
     max_minutes: int | None = None,
     action_space: list | dict | None = None,
     checkpoint: str = "best",
+    reward_check: str = "sandbox",
 ) -> RacingModel:
     """A new model that starts from ``model``'s best (or last) checkpoint. Algorithm, network,
     sensors, action-space type and number of actions stay as they were.
 
     A model without a checkpoint (never trained, or failed before its first one) is copied
-    as a fresh model: the same configuration, trained from scratch, with no parent."""
+    as a fresh model: the same configuration, trained from scratch, with no parent. The reward
+    function is checked on the clone's track as ``reward_check`` says (see model_create)."""
     owned(model, owner)
     if checkpoint not in ("best", "last"):
         raise ServiceError("clone from the best or the last checkpoint", field="checkpoint")
@@ -252,14 +314,17 @@ def model_clone(
         )
     if model.action_space_type == "continuous" and not isinstance(new_actions, dict):
         raise ServiceError("a clone keeps a continuous action space", field="action_space")
+    new_primary = (track_id or model.track_id, direction or model.direction)
     with _all_or_nothing() as created:
         clone = model_create(
             owner=owner,
             name=name,
             description=description,
-            track_id=track_id or model.track_id,
-            direction=direction or model.direction,
+            track_id=new_primary[0],
+            direction=new_primary[1],
+            extra_tracks=[pair for pair in model.extra_tracks if tuple(pair) != new_primary],
             race_type=model.race_type,
+            race_config=dict(model.race_config or {}),
             sensors=list(model.sensors),
             action_space=new_actions,
             algorithm=model.algorithm,
@@ -271,7 +336,7 @@ def model_clone(
                 reward_function if reward_function is not None else model.reward_function
             ),
             max_minutes=max_minutes or model.max_minutes,
-            validate_reward=True,
+            reward_check=reward_check,
         )
         created.append(clone.pk)
         if not model.has_checkpoint:
@@ -283,7 +348,7 @@ def model_clone(
         except StoreUnavailable:
             raise
         except StoreError as exc:
-            raise ServiceError(f"the parent's checkpoint could not be copied: {exc}") from None
+            raise store_failure(exc, "the parent's checkpoint could not be copied") from None
         store.put_bytes(dst.checkpoint("initial"), data)
         store.put_bytes(dst.best, data)
         store.put_bytes(dst.last, data)
@@ -293,15 +358,19 @@ def model_clone(
     return clone
 
 
-def model_update_reward(*, model: RacingModel, user, reward_function: str) -> RacingModel:
+def model_update_reward(
+    *, model: RacingModel, user, reward_function: str, reward_check: str = "sandbox"
+) -> RacingModel:
     """Change the reward function of a model that has never trained (as on DeepRacer, a
-    model's configuration is fixed once training starts: clone it to change it)."""
+    model's configuration is fixed once training starts: clone it to change it); checked as
+    ``reward_check`` says (see model_create)."""
     owned(model, user)
     if model.has_checkpoint or model.training_jobs.exists() or model.is_busy:
         raise ServiceError(
             "the reward function is fixed once training has started; clone the model to change it"
         )
-    check_reward(reward_function, model.track_id, model.direction)
+    reward_check_before_save(user=user, source=reward_function, track_id=model.track_id,
+                             direction=model.direction, how=reward_check)  # fmt: skip
     model.reward_function = reward_function
     model.save(update_fields=["reward_function", "updated_at"])
     get_store().put_bytes(
@@ -320,13 +389,13 @@ def model_import(*, owner, name: str, upload, description: str = "") -> RacingMo
     check_model_quota(owner)
     imported, source_note = _read_model_upload(upload)
     meta = imported.metadata
-    track_id, direction, seed, minutes, note = _imported_environment(
-        read_training_params(imported.extra_files)
-    )
+    params = read_training_params(imported.extra_files)
+    track_id, direction, seed, minutes, note = _imported_environment(params)
     try:
         check_track(track_id, direction)
     except ServiceError:
         direction = "native"
+    extra_tracks = _imported_extra_tracks(params, track_id, direction)
     with _all_or_nothing() as created:
         model = model_create(
             owner=owner,
@@ -345,6 +414,7 @@ def model_import(*, owner, name: str, upload, description: str = "") -> RacingMo
             reward_function=imported.reward_function or example_source(DEFAULT_EXAMPLE),
             max_minutes=minutes,
             validate_reward=False,
+            extra_tracks=extra_tracks,
         )
         created.append(model.pk)
         model.import_note = note  # for the caller to show; not stored
@@ -395,12 +465,9 @@ def model_delete(*, model: RacingModel, user) -> None:
     try:
         get_store().delete_prefix(keys_for(model.pk).prefix)
     except StoreError as exc:
+        refusal = store_failure(exc, "the model's files could not be deleted")
         model.status = RacingModel.Status.ERROR
-        model.error = f"deleting the stored files failed: {exc}"
+        model.error = refusal.message
         model.save(update_fields=["status", "error", "updated_at"])
-        if isinstance(exc, StoreUnavailable):
-            raise ServiceError(
-                "the model store is unavailable right now; try deleting again in a minute"
-            ) from None
-        raise ServiceError(f"the model's files could not be deleted: {exc}") from None
+        raise refusal from None
     model.delete()

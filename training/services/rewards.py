@@ -2,8 +2,15 @@
 
 ``reward_validation_start`` checks the request (text, track, direction: nothing of the user's
 is executed), applies the per-user limits and queues ``training.tasks.validate_reward`` on the
-``default`` queue; the browser polls ``reward_validation_status`` until the result is there.
-The worker runs :func:`reward_validation_run` (static checks, then the sandbox).
+``interactive`` queue; the browser polls ``reward_validation_status`` until the result is
+there. The worker runs :func:`reward_validation_run` (static checks, then the sandbox) and,
+when the function passes, remembers the pass for an hour (:data:`PASS_TTL_S`) under the user,
+a hash of the source (line endings aside), the track and the direction.
+
+Saving a reward function from the web (create, clone, reward edit: training/services/
+models.py) needs such a pass (:func:`reward_validation_passed`) instead of running the sandbox
+in the web process: a function the user just validated saves at once; any other is validated
+on the way (the page queues a validation, shows its progress and saves when it passes).
 
 Per-user limits live in Redis so every web process sees the same counts: at most
 ``RACECRAFT_VALIDATIONS_PER_USER`` validations queued or running at once, and at most
@@ -13,6 +20,8 @@ user who started it.
 
 from __future__ import annotations
 
+import hashlib
+import logging
 import time
 import uuid
 from typing import Any, TypedDict
@@ -24,11 +33,21 @@ from django.conf import settings
 
 from training.dispatch import VALIDATE_REWARD
 from training.errors import RewardRejected, ServiceError
-from training.sandbox import MAX_SOURCE_CHARS
+from training.sandbox import MAX_SOURCE_CHARS, check_source
 from training.services.checks import check_reward, check_track
+
+log = logging.getLogger(__name__)
+VALIDATION_QUEUE_DOWN = (
+    "the validation could not be queued: the task queue cannot be reached right now; "
+    "try again in a minute"
+)
 
 #: How long an id stays readable and a slot stays taken without an answer (seconds).
 KEY_TTL_S = 15 * 60
+#: How long a passed validation lets the same function be saved without another (seconds).
+PASS_TTL_S = 60 * 60
+REWARD_CHECKS = ("passed", "sandbox", "none")
+"""How a reward function is checked before it is saved (training/services/models.py)."""
 
 
 class ValidationNotFound(ServiceError):
@@ -37,6 +56,18 @@ class ValidationNotFound(ServiceError):
 
 class ValidationLimited(ServiceError):
     """The user is over a per-user validation limit (answered 429)."""
+
+
+class ValidationNeeded(ServiceError):
+    """Saving this reward function needs a passed validation first: the caller queues one of
+    ``source`` on ``track_id`` and ``direction`` (:func:`reward_validation_start`)."""
+
+    def __init__(self, *, source: str, track_id: str, direction: str) -> None:
+        super().__init__(
+            "the reward function is being validated; it is saved once it passes",
+            field="reward_function",
+        )
+        self.source, self.track_id, self.direction = source, track_id, direction
 
 
 class ValidationStatus(TypedDict, total=False):
@@ -54,6 +85,57 @@ def _client() -> redis.Redis:
 
 def _key(*parts: object) -> str:
     return f"{settings.REDIS_PREFIX}racecraft:reward-validation:" + ":".join(map(str, parts))
+
+
+def _pass_key(user_id: int, source: str, track_id: str, direction: str) -> str:
+    """Where a pass is remembered. Line endings are normalised: a browser posts a text box
+    with CRLF while the editor's Validate button sends LF, and Python reads both alike."""
+    text = source.replace("\r\n", "\n")
+    digest = hashlib.sha256("\0".join((text, track_id, direction)).encode()).hexdigest()
+    return _key("passed", user_id, digest)
+
+
+def reward_validation_passed(*, user_id: int, source: str, track_id: str, direction: str) -> bool:
+    """Whether this user's validation of exactly this function on this track and direction
+    passed within the last :data:`PASS_TTL_S` seconds."""
+    client = _client()
+    try:
+        return bool(client.exists(_pass_key(user_id, source, track_id, direction)))
+    except redis.RedisError:  # unknown: the caller starts a validation, which says why not
+        log.warning("could not reach Redis for a passed validation", exc_info=True)
+        return False
+    finally:
+        client.close()
+
+
+def reward_check_before_save(*, user, source: str, track_id: str, direction: str, how: str
+                             ) -> None:  # fmt: skip
+    """Check ``source`` as ``how`` says (:data:`REWARD_CHECKS`); raises RewardRejected with
+    the errors on their lines, or ValidationNeeded."""
+    if how == "none":
+        return
+    if how == "sandbox":
+        check_reward(source, track_id, direction)
+        return
+    if how != "passed":
+        raise ValueError(f"reward_check must be one of {REWARD_CHECKS}, not {how!r}")
+    _check_request(source, track_id, direction)
+    static = check_source(source)  # parsing only: no user code runs here
+    if static:
+        raise RewardRejected(static)
+    if not reward_validation_passed(
+        user_id=user.pk, source=source, track_id=track_id, direction=direction
+    ):
+        raise ValidationNeeded(source=source, track_id=track_id, direction=direction)
+
+
+def reward_validation_remember(*, user_id: int, source: str, track_id: str, direction: str) -> None:
+    """Remember a passed validation (the worker, after the sandbox ran the function)."""
+    client = _client()
+    try:
+        client.set(_pass_key(user_id, source, track_id, direction), 1, ex=PASS_TTL_S)
+    finally:
+        client.close()
 
 
 def _check_request(source: object, track_id: object, direction: object) -> None:
@@ -103,11 +185,16 @@ def reward_validation_start(*, user_id: int, source: str, track_id: str, directi
         try:
             current_app.send_task(
                 VALIDATE_REWARD, kwargs={"source": source, "track_id": track_id,
-                                   "direction": direction}, task_id=task_id,
+                                   "direction": direction, "user_id": user_id},
+                task_id=task_id,
             )  # fmt: skip
         except Exception as exc:  # noqa: BLE001 - a task that cannot be queued is refused
+            log.warning("could not queue a validation", exc_info=True)
             client.srem(_key("active", user_id), task_id)
-            raise ServiceError(f"the validation could not be queued: {exc}") from None
+            raise ServiceError(VALIDATION_QUEUE_DOWN) from exc
+    except redis.RedisError as exc:  # Redis holds the limits and the queue: both unreachable
+        log.warning("could not reach Redis for a validation", exc_info=True)
+        raise ServiceError(VALIDATION_QUEUE_DOWN) from exc
     finally:
         client.close()
     return task_id
@@ -134,8 +221,11 @@ def reward_validation_status(*, user_id: int, task_id: str) -> ValidationStatus:
     return {"status": "done", "ok": False, "errors": [failed], "rewards": {}}
 
 
-def reward_validation_run(*, source: str, track_id: str, direction: str) -> dict[str, Any]:
-    """In the worker: validate and answer ``{ok, errors, rewards}`` (JSON-able)."""
+def reward_validation_run(
+    *, source: str, track_id: str, direction: str, user_id: int | None = None
+) -> dict[str, Any]:
+    """In the worker: validate and answer ``{ok, errors, rewards}`` (JSON-able); a pass is
+    remembered for ``user_id`` (:func:`reward_validation_passed`)."""
     try:
         result = check_reward(source, track_id, direction)
     except RewardRejected as exc:
@@ -144,4 +234,8 @@ def reward_validation_run(*, source: str, track_id: str, direction: str) -> dict
         error = {"type": "REQUEST_ERROR", "message": exc.sentence, "line": None,
                  "lineNumber": None, "column": None, "field": exc.field}  # fmt: skip
         return {"ok": False, "errors": [error], "rewards": {}}
+    if user_id is not None:
+        reward_validation_remember(
+            user_id=user_id, source=source, track_id=track_id, direction=direction
+        )
     return {"ok": True, "errors": [], "rewards": result["rewards"]}

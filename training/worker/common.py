@@ -11,17 +11,27 @@ import time
 from django.conf import settings
 from django.db import connection
 
+from racing.race import RaceConfig, RaceType
 from racing.simtrace import SIMTRACE_COLUMNS, TraceRow
 from training import dispatch
 from training.models import RacingModel
-from training.rollout.backends import LocalRollouts, RedisRollouts, RolloutBackend
+from training.rollout.backends import (
+    LocalRollouts,
+    RedisRollouts,
+    RolloutBackend,
+    StreamRollouts,
+)
 from training.rollout.envs import EnvSpec
 from training.sandbox import RewardFunctionError
 from training.services import job_fail, job_heartbeat, job_stop_requested
+from training.services.racing import race_config
+from training.storage import StoreError
 
 log = logging.getLogger(__name__)
 STOP_POLL_S = 1.0
 """How often a running job reads its stop flag from the database, seconds."""
+SIMULATE_EPISODES = "training.tasks.simulate_episodes"
+"""The ``simulation`` queue's task of a simulation worker that owns its episodes."""
 HEARTBEAT_S = 15.0
 """How often a running job stamps its heartbeat, seconds (the reaper waits 300 s)."""
 
@@ -74,22 +84,43 @@ class StopFlag:
 
 
 def env_spec(
-    model: RacingModel, *, track_id: str | None = None, direction: str | None = None
+    model: RacingModel,
+    *,
+    track_id: str | None = None,
+    direction: str | None = None,
+    race: RaceConfig | None = None,
 ) -> EnvSpec:
-    """The simulator a job of ``model`` drives (its own track, or the one given)."""
+    """The simulator a job of ``model`` drives: its own tracks (all of them for a model that
+    trains on several) and race, or the track and race given."""
+    if race is None:
+        race = race_config(model.race_type, model.race_config)
+    own = track_id is None and direction is None
     return EnvSpec(
         track=track_id or model.track_id,
         track_dirs=(str(settings.RACECRAFT_TRACKS_DIR),),
         direction=direction or model.direction,
         action_space=model.action_space,
         sensors=tuple(model.sensors),
+        race=race.to_dict() if race.race_type is not RaceType.TIME_TRIAL else {},
+        tracks=tuple(model.training_tracks) if own and model.extra_tracks else (),
     )
 
 
 def rollout_backend() -> RolloutBackend:
     """Where a training job's episodes run: ``RACECRAFT_REMOTE_ROLLOUT_SLOTS`` workers of the
-    ``simulation`` queue when it is set, else sandboxed processes on this machine."""
+    ``simulation`` queue when it is set, else sandboxed processes on this machine.
+
+    ``RACECRAFT_SIMULATION = "streams"`` gives simulation workers that own their episodes and
+    stream them through Redis (:mod:`training.rl.streamed`); ``"lockstep"`` (the default until
+    the streamed path has shown it learns as well) steps envs from the trainer."""
     slots = int(settings.RACECRAFT_REMOTE_ROLLOUT_SLOTS)
+    if getattr(settings, "RACECRAFT_SIMULATION", "lockstep") == "streams":
+        return StreamRollouts(
+            redis_url=settings.REDIS_URL,
+            workers=slots or 2,
+            launch=functools.partial(dispatch.send, SIMULATE_EPISODES) if slots > 0 else None,
+            prefix=settings.REDIS_PREFIX or "",
+        )
     if slots <= 0:
         return LocalRollouts()
     return RedisRollouts(
@@ -118,6 +149,9 @@ def fail_with(job, exc: Exception, *, what: str, clear: tuple[type[Exception], .
     if isinstance(exc, RewardFunctionError):
         line = f" (line {exc.error.line})" if exc.error.line else ""
         message = f"the reward function failed during training{line}: {exc.error.message}"
+    elif isinstance(exc, StoreError):
+        log.error("%s job %s failed", what, job.pk, exc_info=exc)  # the whole key and server
+        message = f"{what} failed: {exc.public_message()}"
     elif isinstance(exc, clear):
         message = str(exc)
     else:

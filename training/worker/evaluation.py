@@ -16,6 +16,7 @@ from training.interchange.layout import evaluation_stamp
 from training.models import EvaluationJob
 from training.rl.checkpoints import CheckpointError, load_checkpoint
 from training.rl.evaluation import EvaluationSettings, evaluate, sb3_policy
+from training.services.racing import race_config
 from training.storage import StoreError
 from training.store import get_store, keys_for
 from training.worker.common import Heartbeat, StopFlag, csv_text, env_spec, fail_with
@@ -51,7 +52,12 @@ def run_evaluation_job(evaluation_id: int, worker: str = "") -> str:
         with Heartbeat(EvaluationJob, job.pk):
             report = evaluate(
                 sb3_policy(policy_model),
-                env_spec(model, track_id=job.track_id, direction=job.direction),
+                env_spec(
+                    model,
+                    track_id=job.track_id,
+                    direction=job.direction,
+                    race=race_config(job.race_type, job.race_config),
+                ),
                 settings,
                 on_progress=on_progress,
                 should_stop=StopFlag(job),

@@ -12,6 +12,7 @@ import json
 import logging
 import time
 
+from django.conf import settings
 from django.db import transaction
 
 from racing.rules import STATUS_LABELS, Status
@@ -19,11 +20,14 @@ from training import live, services
 from training.interchange.export import build_car_archive
 from training.interchange.logbook import LoggedIteration, TrainingLog
 from training.models import EpisodeMetric, IterationMetric, RacingModel, TrainingJob
+from training.rl.algorithms import DeviceError
 from training.rl.checkpoints import CheckpointError
 from training.rl.hyperparams import parse_hyperparameters
-from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train
+from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks
+from training.rl.streamed import train
 from training.rollout.vecenv import RolloutError
 from training.sandbox import SandboxError
+from training.services.analysis import analysis_summary_update
 from training.storage import ObjectNotFound, StoreError
 from training.store import get_store, keys_for
 from training.worker.common import (
@@ -37,7 +41,7 @@ from training.worker.common import (
 log = logging.getLogger(__name__)
 EPISODE_COUNT_EVERY_S = 5.0
 """How often a running job records how many episodes have finished, seconds."""
-CLEAR_ERRORS = (RolloutError, SandboxError, CheckpointError, StoreError)
+CLEAR_ERRORS = (RolloutError, SandboxError, CheckpointError, StoreError, DeviceError)
 """Errors whose message already tells the user what went wrong."""
 
 
@@ -75,6 +79,8 @@ class JobHooks(TrainingHooks):
         return self.frames.watched()
 
     def on_frame(self, frame: dict) -> None:
+        if isinstance(frame.get("iteration"), int):  # numbered on from a resumed job's
+            frame = {**frame, "iteration": frame["iteration"] + self._iteration_offset}
         self.frames.publish(frame)
 
     def on_episode(self, entry: dict) -> None:
@@ -123,6 +129,7 @@ class JobHooks(TrainingHooks):
                 RacingModel.objects.filter(pk=self.model.pk).update(has_checkpoint=True)
                 self.model.has_checkpoint = True
         self._write_training_metrics()
+        analysis_summary_update(model=self.model)
         live.send(self.group, {"type": "job.metrics", "point": point})
 
     def finish(self) -> None:
@@ -179,6 +186,7 @@ def _episode_row(job: TrainingJob, iteration: int, e: dict) -> EpisodeMetric:
         elapsed_time_in_milliseconds=max(0, num("elapsed_time_in_milliseconds")),
         start_time=max(0, num("start_time")),
         metric_time=max(0, num("metric_time")),
+        track=str(e.get("track", ""))[:64] if job.model.extra_tracks else "",
     )
 
 
@@ -186,8 +194,10 @@ def _evaluation_rows(job: TrainingJob, last: EpisodeMetric, ev) -> list[EpisodeM
     """The evaluation episodes after an update, as TrainingMetrics ``evaluation`` entries:
     numbered like the last training entry; times are the lap's, when it finished one."""
     rows = []
-    for progress, status, laps, reward in zip(
-        ev.progress, ev.statuses, ev.lap_times, ev.rewards, strict=True
+    # Evaluation env i drives the model's track i (mod their number): EnvSpec.for_env.
+    tracks = [t for t, _ in job.model.training_tracks] if job.model.extra_tracks else [""]
+    for i, (progress, status, laps, reward) in enumerate(
+        zip(ev.progress, ev.statuses, ev.lap_times, ev.rewards, strict=True)
     ):
         label = STATUS_LABELS.get(Status(status), "") if status in _STATUSES else ""
         rows.append(EpisodeMetric(
@@ -195,7 +205,7 @@ def _evaluation_rows(job: TrainingJob, last: EpisodeMetric, ev) -> list[EpisodeM
             phase="evaluation", reward_score=int(round(reward)),
             completion_percentage=min(100, max(0, int(progress))), episode_status=label,
             elapsed_time_in_milliseconds=int(round(sum(laps) * 1000)),
-            start_time=0, metric_time=0,
+            start_time=0, metric_time=0, track=tracks[i % len(tracks)],
         ))  # fmt: skip
     return rows
 
@@ -266,6 +276,7 @@ def run_training_job(job_id: int, worker: str = "") -> str:
             initial_checkpoint=checkpoint,
             best_score=best_score,
             rollouts=rollout_backend(),
+            device=settings.RACECRAFT_TORCH_DEVICE,
         )
         services.job_begin(job=job)
         with Heartbeat(TrainingJob, job.pk):

@@ -67,6 +67,7 @@ class Command(BaseCommand):
             concurrency=concurrency,
             evaluation_concurrency=evaluation_concurrency,
             quick_concurrency=settings.RACECRAFT_QUICK_CONCURRENCY,
+            interactive_concurrency=settings.RACECRAFT_INTERACTIVE_CONCURRENCY,
             simulation_slots=settings.RACECRAFT_REMOTE_ROLLOUT_SLOTS,
             job_nice=settings.RACECRAFT_WORKER_NICE,
             redis_url=os.environ.get("REDIS_URL") or None,

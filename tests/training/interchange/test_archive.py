@@ -197,11 +197,11 @@ def bad_cases(files: dict[str, bytes]) -> dict[str, tuple[bytes, str]]:
                 {
                     **files,
                     "model/model_metadata.json": json.dumps(
-                        {**meta, "sensor": ["FRONT_FACING_CAMERA", "LIDAR"]}
+                        {**meta, "sensor": ["FRONT_FACING_CAMERA", "SONAR"]}
                     ).encode(),
                 }
             ),
-            "model/model_metadata.json: sensor: LIDAR is not supported",
+            "model/model_metadata.json: sensor: unknown sensor 'SONAR'",
         ),
         "metadata not JSON": (
             tar_gz({**files, "model/model_metadata.json": b"\x89PNG"}),

@@ -1,5 +1,5 @@
 """Validation before a model is created: static errors, runtime checks on real tracks, the
-four examples, and the command line."""
+examples, and the command line."""
 
 from __future__ import annotations
 
@@ -92,7 +92,7 @@ def test_situations_come_from_the_simulator_on_the_real_track() -> None:
 
 
 @pytest.mark.parametrize("example", EXAMPLES, ids=[e.id for e in EXAMPLES])
-def test_the_four_examples_validate_and_run(example) -> None:
+def test_the_examples_validate_and_run(example) -> None:
     result = validate_reward_function(example_source(example.id), TRACK)
     assert result.ok, result.errors
     assert set(result.rewards) == set(SITUATIONS)

@@ -52,6 +52,34 @@ def test_continuous_example() -> None:
     assert meta.to_json() == json.loads(CONTINUOUS_EXAMPLE)
 
 
+@pytest.mark.parametrize(
+    "sensor, camera, lidar, size",
+    [
+        (["FRONT_FACING_CAMERA", "LIDAR"], "FRONT_FACING_CAMERA", "LIDAR", 64),
+        (["sector_lidar", "STEREO_CAMERAS"], "STEREO_CAMERAS", "SECTOR_LIDAR", 8),
+        (["STEREO_CAMERAS", "DISCRETIZED_SECTOR_LIDAR"], "STEREO_CAMERAS",
+         "DISCRETIZED_SECTOR_LIDAR", 64),
+        (["STEREO_CAMERAS"], "STEREO_CAMERAS", None, 0),
+    ],
+)  # fmt: skip
+def test_deepracer_sensor_combinations(sensor, camera, lidar, size) -> None:
+    """deepracer-spec §4: camera or stereo, each alone or with one LIDAR; the camera comes
+    first, the observation space is the simulator's (a Dict with a LIDAR)."""
+    meta = build_metadata(action_space=CONTINUOUS, sensor=sensor)
+    assert meta.sensor == ((camera, lidar) if lidar else (camera,))
+    assert meta.camera == camera and meta.lidar == lidar
+    space = meta.observation_space
+    image_shape = (120, 160, 2 if camera == "STEREO_CAMERAS" else 1)
+    if lidar is None:
+        assert space.shape == image_shape
+    else:
+        assert set(space.spaces) == {camera, lidar}
+        assert space.spaces[camera].shape == image_shape
+        assert space.spaces[lidar].shape == (size,)
+    again = parse_metadata(meta.dumps())
+    assert again.sensor == meta.sensor
+
+
 def test_roundtrip_through_bytes() -> None:
     meta = build_metadata(
         action_space=CONTINUOUS,
@@ -217,12 +245,12 @@ BAD: list[tuple[str, dict[str, Any] | Any, str, str]] = [
         "sensor",
         "exactly one camera",
     ),
-    ("lidar", {**good(), "sensor": ["FRONT_FACING_CAMERA", "LIDAR"]}, "sensor", "no LIDAR yet"),
+    ("lidar alone", {**good(), "sensor": ["LIDAR"]}, "sensor", "exactly one camera"),
     (
-        "sector lidar",
-        {**good(), "sensor": ["STEREO_CAMERAS", "SECTOR_LIDAR"]},
+        "two lidars",
+        {**good(), "sensor": ["STEREO_CAMERAS", "SECTOR_LIDAR", "LIDAR"]},
         "sensor",
-        "no LIDAR yet",
+        "at most one LIDAR",
     ),
     ("unknown sensor", {**good(), "sensor": ["THERMAL"]}, "sensor", "unknown sensor"),
     ("sensor not a list", {**good(), "sensor": {"a": 1}}, "sensor", "list"),

@@ -54,7 +54,7 @@ def charlie_client(db) -> Client:
 def worker(redis_env: dict[str, str], tmp_path: Path) -> Iterator[ChildProcess]:
     env = {**os.environ, **redis_env, "DJANGO_SETTINGS_MODULE": "console.settings"}
     with celery_worker_process(
-        queues=["default"], env=env, log_path=tmp_path / "worker.log"
+        queues=["interactive"], env=env, log_path=tmp_path / "worker.log"
     ) as process:
         yield process
 

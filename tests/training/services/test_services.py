@@ -4,34 +4,15 @@ stopping, and noticing jobs whose worker died. (Alice owns things; Bob must neve
 from __future__ import annotations
 
 import pytest
-from django.contrib.auth import get_user_model
 from django.utils import timezone
 
+from tests.training.services.factory import ACTIONS, REWARD, create
 from training import services
 from training.models import EvaluationJob, JobStatus, RacingModel, TrainingJob
 from training.services import RewardRejected, ServiceError
-
-ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-30, 0, 30)]
-REWARD = "def reward_function(params):\n    return 1.0\n"
+from training.storage import StoreError, StoreUnavailable
 
 pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("store_dir")]
-
-
-@pytest.fixture
-def alice():
-    return get_user_model().objects.create_user("alice", password="pw-alice-123")
-
-
-@pytest.fixture
-def bob():
-    return get_user_model().objects.create_user("bob", password="pw-bob-123")
-
-
-def create(owner, **overrides) -> RacingModel:
-    kwargs = dict(owner=owner, name="m1", track_id="racecraft_oval", action_space=ACTIONS,
-                  reward_function=REWARD, validate_reward=False)  # fmt: skip
-    kwargs.update(overrides)
-    return services.model_create(**kwargs)
 
 
 def test_create_stores_deepracer_files(alice):
@@ -53,7 +34,28 @@ def test_create_stores_deepracer_files(alice):
         ({"name": "x" * 65}, "name", "1-64"),
         ({"track_id": "atlantis"}, "track_id", "unknown track"),
         ({"direction": "sideways"}, "direction", "native, ccw or cw"),
-        ({"race_type": "OBJECT_AVOIDANCE"}, "race_type", "Time trial"),
+        ({"race_type": "F1"}, "race_type", "unknown race type"),
+        (
+            {"race_type": "OBJECT_AVOIDANCE", "race_config": {"number_of_objects": 7}},
+            "number_of_objects",
+            "1 to 6",
+        ),
+        (
+            {"race_type": "OBJECT_AVOIDANCE", "race_config": {"object_positions": [[0.5, 2]]}},
+            "object_positions",
+            "1 \\(inner\\) or -1",
+        ),
+        ({"race_type": "HEAD_TO_BOT", "race_config": {"bot_speed": 9}}, "bot_speed", "0.2-6.0"),
+        (
+            {"race_type": "HEAD_TO_BOT", "race_config": {"number_of_objects": 2}},
+            "race_type",
+            "no setting 'number_of_objects'",
+        ),
+        (
+            {"race_type": "TIME_TRIAL", "race_config": {"number_of_bots": 2}},
+            "race_type",
+            "no setting",
+        ),
         ({"algorithm": "sac"}, "algorithm", "continuous"),
         ({"action_space": [{"steering_angle": 0, "speed": 1}]}, "action_space", "2-30"),
         ({"sensors": ["LIDAR"]}, "sensors", "LIDAR"),
@@ -114,7 +116,7 @@ def test_only_the_owner_can_act(alice, bob, django_capture_on_commit_callbacks):
             call()
 
 
-def test_start_queues_after_commit_and_a_broker_failure_fails_the_job(
+def test_start_queues_after_commit_and_a_broker_failure_keeps_the_job_queued(
     alice, monkeypatch, django_capture_on_commit_callbacks
 ):
     from training import dispatch
@@ -127,10 +129,12 @@ def test_start_queues_after_commit_and_a_broker_failure_fails_the_job(
     monkeypatch.setattr(dispatch, "send", broken)
     with django_capture_on_commit_callbacks(execute=True):
         job = services.training_start(model=model, user=alice)
+    assert "stays queued" in job.dispatch_note  # for the page to say
     job.refresh_from_db()
-    assert job.status == JobStatus.FAILED and "could not be queued" in job.error
+    # Kept for the reaper to send once the broker is back (tests/faults/test_broker_down.py).
+    assert job.status == JobStatus.QUEUED and job.task_id == "" and job.error == ""
     model.refresh_from_db()
-    assert model.status == RacingModel.Status.ERROR  # no checkpoint to fall back on
+    assert model.status == RacingModel.Status.QUEUED
 
 
 def test_job_quota_and_busy_model(alice, settings, monkeypatch, django_capture_on_commit_callbacks):
@@ -299,3 +303,38 @@ def test_a_reward_that_fails_only_in_training_fails_the_job_once_with_its_line(a
     assert not services.job_fail(job=job, error="again")
     job.refresh_from_db()
     assert job.error.endswith("division by zero")
+
+
+@pytest.mark.parametrize(
+    ("error", "expected"),
+    [
+        (
+            StoreUnavailable(
+                "cannot write 'racecraft/alice-model/model/last.zip' at MinioStore("
+                "endpoint='10.1.2.3:9000', bucket='deepracer-secret-bucket'): connection refused",
+                action="write",
+                key="racecraft/alice-model/model/last.zip",
+            ),
+            "training failed: the model store is unavailable right now; try again in a minute",
+        ),
+        (
+            StoreError(
+                "cannot write '/srv/racecraft/var/store/7/model/last.zip': No space left on device",
+                action="write",
+                key="7/model/last.zip",
+                reason="No space left on device",
+            ),
+            "training failed: the model store could not write last.zip: No space left on device",
+        ),
+    ],
+)
+def test_a_store_failure_fails_the_job_without_endpoint_bucket_or_folder(alice, error, expected):
+    from training.worker.common import fail_with
+
+    job = TrainingJob.objects.create(model=create(alice), max_minutes=5,
+                                     status=JobStatus.IN_PROGRESS)  # fmt: skip
+    assert fail_with(job, error, what="training", clear=(StoreError,)) == "failed"
+    job.refresh_from_db()
+    assert job.error == expected
+    for secret in ("10.1.2.3", "9000", "deepracer-secret-bucket", "/srv", "alice-model", "/7/"):
+        assert secret not in job.error

@@ -8,24 +8,21 @@ from __future__ import annotations
 import io
 import os
 import tarfile
-import threading
-import time
 import uuid
 from collections.abc import Iterator
 
 import numpy as np
 import pytest
 from django.contrib.auth import get_user_model
-from django.db import connections
 from moto.server import ThreadedMotoServer
 
 from tests.support import CENTRE_LINE_REWARD as REWARD
 from tests.support import OVAL_ACTIONS as ACTIONS
+from tests.support import train_in_thread
 from training import services
-from training.models import EpisodeMetric, EvaluationJob, TrainingJob
+from training.models import EpisodeMetric, EvaluationJob
 from training.services import downloads
 from training.worker.evaluation import run_evaluation_job
-from training.worker.training import run_training_job
 
 pytest.importorskip("deepracer.logs")
 from deepracer.logs import (  # noqa: E402 - only once the reader is known to be installed
@@ -64,29 +61,6 @@ def s3(settings) -> Iterator[tuple[str, str]]:
                 os.environ[key] = value
 
 
-def _train_two_iterations(model, user) -> TrainingJob:
-    """Run the job in a thread (as the command line does) and stop it after two updates."""
-    job = services.training_start(model=model, user=user, enqueue=False)
-
-    def body() -> None:
-        try:
-            run_training_job(job.pk, "test")
-        finally:
-            connections.close_all()
-
-    thread = threading.Thread(target=body, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 400
-    while time.monotonic() < deadline and thread.is_alive():
-        if TrainingJob.objects.get(pk=job.pk).iterations >= 2:
-            break
-        time.sleep(0.5)
-    services.job_stop(job=TrainingJob.objects.get(pk=job.pk), user=user)
-    thread.join(timeout=300)
-    assert not thread.is_alive(), "the training job did not stop"
-    return TrainingJob.objects.get(pk=job.pk)
-
-
 def test_deepracer_utils_reads_what_the_job_recorded(s3, tmp_path) -> None:
     endpoint, bucket = s3
     alice = get_user_model().objects.create_user("alice", password="pw-alice-123")
@@ -97,7 +71,8 @@ def test_deepracer_utils_reads_what_the_job_recorded(s3, tmp_path) -> None:
                          "num_epochs": 3, "batch_size": 32},
     )  # fmt: skip
     assert model.store_prefix == f"u{alice.pk}-log-reader"
-    job = _train_two_iterations(model, alice)
+    job = services.training_start(model=model, user=alice, enqueue=False)
+    job = train_in_thread(job, alice, iterations=2, within_s=400)
     assert job.status == "COMPLETED", job.error
     evaluation = services.evaluation_start(model=model, user=alice, laps=3, enqueue=False)
     assert run_evaluation_job(evaluation.pk, "test") == "completed"

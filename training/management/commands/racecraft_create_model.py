@@ -17,7 +17,9 @@ from training.management.cli import (
     service_errors,
 )
 from training.models import Direction
-from training.rl.metadata import MetadataError, parse_metadata
+from training.rewards.examples import example_source
+from training.rl.metadata import MetadataError, ModelMetadata, build_metadata, parse_metadata
+from training.rl.presets import PRESETS, Preset, preset
 from training.selectors import user_by_username
 
 
@@ -33,6 +35,27 @@ def read_text(path: str, what: str) -> str:
         return read_bytes(path, what).decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise CommandError(f"the {what} {path} is not UTF-8 text ({exc.reason})") from None
+
+
+def track_and_direction(text: str) -> tuple[str, str]:
+    """``TRACK`` or ``TRACK:DIRECTION`` (native, ccw or cw) from ``--also-train-on``."""
+    track, _, direction = text.partition(":")
+    direction = direction or Direction.NATIVE
+    if not track or direction not in Direction.values:
+        raise CommandError(
+            f"--also-train-on {text!r}: give TRACK or TRACK:DIRECTION, the direction one of "
+            f"{', '.join(Direction.values)}"
+        )
+    return track, direction
+
+
+def preset_metadata(chosen: Preset) -> ModelMetadata:
+    return build_metadata(
+        action_space=chosen.actions(),
+        training_algorithm=chosen.algorithm,
+        sensor=["FRONT_FACING_CAMERA"],
+        neural_network=chosen.network,
+    )
 
 
 def read_hyperparameters(path: str) -> dict:
@@ -73,9 +96,11 @@ Networks: RACECRAFT_LEAN_CNN (fast on a CPU), DEEP_CONVOLUTIONAL_NETWORK_SHALLOW
 class Command(BaseCommand):
     help = (
         "Create a model from DeepRacer's files: reward_function.py, model_metadata.json (action "
-        "space, sensor, algorithm, network) and optionally hyperparameters.json. The reward "
-        "function is checked in the sandbox first. Prints the new model's id (only the id "
-        "with -v 0)."
+        "space, sensor, algorithm, network) and optionally hyperparameters.json, or from a "
+        "preset (--preset racing: fast laps soon; deepracer_defaults), whose parts any of "
+        "those files replace. --also-train-on trains one model on several tracks at once. The "
+        "reward function is checked in the sandbox first, on every track. Prints the new "
+        "model's id (only the id with -v 0)."
     )
 
     def create_parser(self, prog_name: str, subcommand: str, **kwargs: Any):
@@ -89,8 +114,19 @@ class Command(BaseCommand):
     def add_arguments(self, parser: ArgumentParser) -> None:
         add_owner_argument(parser, required=True)
         parser.add_argument("--name", required=True, help="1-64 letters, digits or hyphens")
-        parser.add_argument("--reward", required=True, metavar="PATH", help="reward_function.py")
-        parser.add_argument("--metadata", required=True, metavar="PATH", help="model_metadata.json")
+        parser.add_argument(
+            "--preset",
+            choices=[p.id for p in PRESETS],
+            help="start from a preset: "
+            + "; ".join(f"{p.id}: {p.label}" for p in PRESETS)
+            + " (its action space, example reward and hyperparameters)",
+        )
+        parser.add_argument(
+            "--reward", metavar="PATH", help="reward_function.py (required without --preset)"
+        )
+        parser.add_argument(
+            "--metadata", metavar="PATH", help="model_metadata.json (required without --preset)"
+        )
         parser.add_argument(
             "--hyperparameters",
             metavar="PATH",
@@ -104,6 +140,14 @@ class Command(BaseCommand):
             help="driving direction on the track (default: native)",
         )
         parser.add_argument(
+            "--also-train-on",
+            nargs="+",
+            default=[],
+            metavar="TRACK[:DIRECTION]",
+            help="multi-track training: more tracks the model trains on at once, the cars "
+            "dealt the tracks in turn (direction native, ccw or cw; default native)",
+        )
+        parser.add_argument(
             "--minutes",
             type=int,
             default=10,
@@ -115,14 +159,26 @@ class Command(BaseCommand):
         )
 
     def handle(self, *args: Any, **options: Any) -> None:
-        reward = read_text(options["reward"], "reward function")
-        try:
-            metadata = parse_metadata(read_bytes(options["metadata"], "metadata file"))
-        except MetadataError as exc:
-            raise CommandError(f"{options['metadata']}: {exc}") from None
+        chosen = preset(options["preset"]) if options["preset"] else None
+        if chosen is None and not (options["reward"] and options["metadata"]):
+            raise CommandError("give --reward and --metadata, or --preset")
+        if options["reward"]:
+            reward = read_text(options["reward"], "reward function")
+        else:
+            reward = example_source(chosen.reward_example)
+        if options["metadata"]:
+            try:
+                metadata = parse_metadata(read_bytes(options["metadata"], "metadata file"))
+            except MetadataError as exc:
+                raise CommandError(f"{options['metadata']}: {exc}") from None
+        else:
+            metadata = preset_metadata(chosen)
         hyperparameters = (
             read_hyperparameters(options["hyperparameters"]) if options["hyperparameters"] else None
         )
+        if hyperparameters is None and chosen is not None:
+            hyperparameters = chosen.hyperparameters.to_json()
+        extra_tracks = [track_and_direction(t) for t in options["also_train_on"]]
         with service_errors():
             owner = user_by_username(username=options["owner"])
             model = services.model_create(
@@ -131,6 +187,7 @@ class Command(BaseCommand):
                 description=options["description"],
                 track_id=options["track"],
                 direction=options["direction"],
+                extra_tracks=extra_tracks,
                 sensors=list(metadata.sensor),
                 action_space=metadata.actions.to_metadata(),
                 algorithm=metadata.training_algorithm,
@@ -145,7 +202,8 @@ class Command(BaseCommand):
             return
         self.stdout.write(
             f"Created model {model.pk}: {model.name} ({model.algorithm}, {action_summary(model)}, "
-            f"{', '.join(model.sensors)}, {model.neural_network}) on {model.track_id}, "
+            f"{', '.join(model.sensors)}, {model.neural_network}) on "
+            f"{' + '.join(f'{t} ({d})' for t, d in model.training_tracks)}, "
             f"{model.max_minutes} min of training"
         )
         self.stdout.write(f"Train it with: manage.py racecraft_train {model.pk}")

@@ -41,7 +41,8 @@ class Command(BaseCommand):
         where = "queued for a worker" if queue else "running here"
         self.stdout.write(
             f"Training job {job.pk} of model {model.pk} ({model.name}): {where}, "
-            f"up to {job.max_minutes} min on {model.track_id}"
+            f"up to {job.max_minutes} min on "
+            f"{' + '.join(t for t, _ in model.training_tracks)}"
         )
         done = run_or_follow(job=job, queue=queue, user=user, run=run_training_job,
                              progress=training_progress, out=self.stdout)  # fmt: skip

@@ -1,4 +1,5 @@
-"""The four example reward functions the console offers (DeepRacer's four, in our words).
+"""The example reward functions the console offers: DeepRacer's four, in our words, and the
+racing preset's (:mod:`training.rl.presets`), which pays speed along the track.
 
 The files are data: read them with :func:`example_source`; never import them.
 """
@@ -40,6 +41,12 @@ EXAMPLES: tuple[RewardExample, ...] = (
         "Object avoidance - stay on one lane and not crashing",
         "OBJECT_AVOIDANCE",
         "object_avoidance.py",
+    ),
+    RewardExample(
+        "speed_along_track",
+        "Time trial - fast laps: speed along the track (Racing preset)",
+        "TIME_TRIAL",
+        "speed_along_track.py",
     ),
 )
 DEFAULT_EXAMPLE = "follow_center_line"

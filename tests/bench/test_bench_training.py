@@ -1,0 +1,84 @@
+"""bench/bench_training.py's bookkeeping, without training: the streak that defines the goal,
+the medians (a missed goal is never averaged away), the laps and the last line."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+PATH = Path(__file__).resolve().parents[2] / "bench" / "bench_training.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_training_under_test", PATH)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    yield module
+    del sys.modules[spec.name]
+
+
+def test_the_streak_needs_three_clean_evaluations_in_a_row(bench) -> None:
+    streak = bench.Streak()
+    assert not streak.add(True, [30.0, 31.0, 30.5])
+    assert not streak.add(True, [30.0, 31.0, 30.5])
+    assert not streak.add(False, [30.0])  # off track on the second lap: start again
+    assert not streak.add(True, [29.0, 29.0, 29.0])
+    assert not streak.add(True, [29.0, 29.0])  # two laps are not three
+    assert [streak.add(True, [28.0] * 3) for _ in range(3)] == [False, False, True]
+    assert streak.evaluations == [[28.0] * 3] * 3
+
+
+def test_the_fast_goal_counts_only_evaluations_with_every_lap_within_the_limit(bench) -> None:
+    streak = bench.Streak(lap_limit_s=10.0)
+    assert not streak.add(True, [9.5, 9.8, 10.0])
+    assert not streak.add(True, [9.5, 10.01, 9.0])  # one slow lap breaks the streak
+    assert streak.evaluations == []
+    assert [streak.add(True, [9.9, 9.7, 9.6]) for _ in range(3)] == [False, False, True]
+
+
+def run(bench, seconds, steps, laps=(), best=None):
+    r = bench.Run("fast", 0, seconds=seconds, steps=steps, best_lap_s=best)
+    r.qualifying_laps = [list(ev) for ev in laps]
+    return r
+
+
+def test_medians_laps_and_best_lap(bench) -> None:
+    runs = [
+        run(bench, 100.0, 30_000, [[9.0, 9.5, 9.9]] * 3, best=8.9),
+        run(bench, 140.0, 41_000, [[9.8, 9.8, 9.8]] * 3, best=9.1),
+        run(bench, 90.0, 28_000, [[9.2, 9.3, 9.4]] * 3, best=8.7),
+    ]
+    s = bench.summarise(runs)
+    assert (s.median_s, s.median_steps, s.reached, s.runs) == (100.0, 30_000.0, 3, 3)
+    assert s.lap_s == 9.5  # the 14th of the 27 qualifying laps
+    assert s.best_lap_s == 8.7
+
+
+def test_a_seed_that_missed_its_goal_makes_the_median_nan(bench) -> None:
+    runs = [run(bench, 100.0, 30_000, [[9.0] * 3] * 3, 8.8), run(bench, None, None, best=9.9)]
+    s = bench.summarise(runs)
+    assert s.median_s is None and s.median_steps is None and s.reached == 1
+    assert s.lap_s == 9.0 and s.best_lap_s == 8.8
+    assert bench.summarise([]).median_s is None
+
+
+def test_the_last_line_carries_every_figure_and_the_ratio(bench) -> None:
+    defaults = bench.SetupSummary(40.0, 9_000.0, 31.25, 29.5, 3, 3)
+    fast = bench.SetupSummary(110.0, 33_000.0, 9.64, 8.91, 3, 3)
+    assert bench.key_values(defaults, fast) == (
+        "defaults_median_s=40.0 defaults_lap_s=31.25 fast_median_s=110.0 fast_lap_s=9.64 "
+        "best_lap_s=8.91 ratio=2.75"
+    )
+    missed = bench.SetupSummary(None, None, None, 12.0, 0, 3)
+    line = bench.key_values(defaults, missed)
+    assert "fast_median_s=nan fast_lap_s=nan best_lap_s=12.00 ratio=nan" in line
+
+
+def test_the_machine_line_names_cores_and_load(bench) -> None:
+    text = bench.machine()
+    assert " cores, load average " in text and len(text.rsplit("average ", 1)[1].split()) == 3

@@ -1,0 +1,72 @@
+"""The race settings in Chromium: the create-model wizard and the evaluation form show the
+settings of the race type chosen (boxes for object avoidance, bot cars for head-to-bot, none
+for a time trial), from the pages' own scripts (CSP: no inline script). daphne serves the
+console on the test database."""
+
+from __future__ import annotations
+
+import pytest
+from django.contrib.auth import get_user_model
+
+from training import services
+from training.models import RacingModel
+
+PASSWORD = "pw-racer-123"
+ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-30, 0, 30)]
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.django_db(transaction=True),
+              pytest.mark.timeout(600)]  # fmt: skip
+
+
+@pytest.fixture
+def racer_model(store_dir) -> RacingModel:
+    user = get_user_model().objects.create_user("racer", password=PASSWORD)
+    model = services.model_create(
+        owner=user, name="boxes", track_id="racecraft_oval", action_space=ACTIONS,
+        reward_function="def reward_function(params):\n    return 1.0\n",
+        validate_reward=False, race_type="OBJECT_AVOIDANCE",
+        race_config={"number_of_objects": 2},
+    )  # fmt: skip
+    RacingModel.objects.filter(pk=model.pk).update(has_checkpoint=True)
+    return model
+
+
+def test_the_settings_follow_the_race_type(browser, daphne, racer_model):
+    from playwright.sync_api import expect
+
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    context.set_default_timeout(30_000)
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(f"{daphne.url}/accounts/login/")
+    page.fill("#id_username", "racer")
+    page.fill("#id_password", PASSWORD)
+    page.click("button[type=submit]")
+    expect(page).not_to_have_url(f"{daphne.url}/accounts/login/")
+
+    page.goto(f"{daphne.url}/models/new/")
+    boxes, bots = page.locator("#race-settings-boxes"), page.locator("#race-settings-bots")
+    expect(boxes).to_be_hidden()  # a time trial has no settings
+    expect(bots).to_be_hidden()
+    page.check("input[name=race_type][value=OBJECT_AVOIDANCE]")
+    expect(boxes).to_be_visible()
+    expect(bots).to_be_hidden()
+    page.check("input[name=race_type][value=HEAD_TO_BOT]")
+    expect(bots).to_be_visible()
+    expect(page.locator("#id_bot_speed")).to_have_value("0.5")
+    expect(boxes).to_be_hidden()
+    expect(page.locator("#id_lidar option[value=SECTOR_LIDAR]")).to_have_count(1)
+
+    page.goto(f"{daphne.url}/models/{racer_model.pk}/")
+    form = page.locator("#evaluate-form")
+    expect(form.locator("select[name=race_type]")).to_have_value("OBJECT_AVOIDANCE")
+    expect(form.locator("[data-race=OBJECT_AVOIDANCE]")).to_be_visible()
+    expect(form.locator("input[name=number_of_objects]")).to_have_value("2")
+    form.locator("select[name=race_type]").select_option("HEAD_TO_BOT")
+    expect(form.locator("[data-race=HEAD_TO_BOT]")).to_be_visible()
+    expect(form.locator("[data-race=OBJECT_AVOIDANCE]")).to_be_hidden()
+    form.locator("select[name=race_type]").select_option("")
+    expect(form.locator("[data-race=HEAD_TO_BOT]")).to_be_hidden()
+    assert errors == []
+    context.close()

@@ -1,0 +1,219 @@
+"""Streamed training (issue 14) on its own, no Django: simulation worker processes drive whole
+episodes with their copy of the policy and stream them through the tests' real Redis; the
+trainer learns from the current version's episodes only, evaluates while it updates, and
+resumes from a checkpoint."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+from stable_baselines3.common.buffers import RolloutBuffer
+
+from training.rl.checkpoints import load_checkpoint
+from training.rl.hyperparams import parse_hyperparameters
+from training.rl.metadata import build_metadata
+from training.rl.runner import TrainingConfig, TrainingHooks
+from training.rl.streamed import episode_advantages, streamed, train
+from training.rollout.backends import StreamRollouts
+from training.rollout.envs import EnvSpec
+
+DISCRETE = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
+REWARD = """
+def reward_function(params):
+    return params["speed"] if params["all_wheels_on_track"] else 1e-3
+"""
+
+
+def test_advantages_are_sb3s_gae_for_a_terminated_and_a_truncated_episode():
+    rng = np.random.default_rng(3)
+    gamma, lam = 0.99, 0.95
+    lengths, terminated, bootstrap = [5, 4], [True, False], [0.0, 0.7]
+    rewards = [rng.normal(size=n).astype(np.float32) for n in lengths]
+    values = [rng.normal(size=n).astype(np.float32) for n in lengths]
+    ours = np.concatenate([
+        episode_advantages(r, v, terminated=t, bootstrap=b, gamma=gamma, lam=lam)
+        for r, v, t, b in zip(rewards, values, terminated, bootstrap, strict=True)
+    ])  # fmt: skip
+    # SB3: one env, the two episodes in a row, the truncated one's bootstrap added to its last
+    # reward (what OnPolicyAlgorithm.collect_rollouts does), every episode ending in a done.
+    n = sum(lengths)
+    buf = RolloutBuffer(n, spaces.Box(0, 1, (1,)), spaces.Discrete(2), gamma=gamma,
+                        gae_lambda=lam, n_envs=1)  # fmt: skip
+    r = np.concatenate(rewards)
+    r[n - 1] += gamma * bootstrap[1]
+    buf.rewards[:, 0] = r
+    buf.values[:, 0] = np.concatenate(values)
+    buf.episode_starts[[0, lengths[0]], 0] = 1.0
+    buf.compute_returns_and_advantage(torch.zeros(1), np.ones(1))
+    assert np.allclose(ours, buf.advantages[:, 0], atol=1e-5)
+
+
+class Collect(TrainingHooks):
+    def __init__(self, iterations: int, watch: bool = False) -> None:
+        self.iterations, self.watch = iterations, watch
+        self.results, self.checkpoints, self.rows, self.episodes, self.frames = [], [], [], [], []
+
+    def on_episode(self, entry: dict) -> None:
+        self.episodes.append(entry)
+
+    def on_iteration(self, result, checkpoint, rows) -> None:
+        self.results.append(result)
+        self.checkpoints.append(checkpoint)
+        self.rows.append(rows)
+
+    def frames_wanted(self) -> bool:
+        return self.watch
+
+    def on_frame(self, frame: dict) -> None:
+        self.frames.append(frame)
+
+    def should_stop(self) -> bool:
+        return len(self.results) >= self.iterations
+
+
+def _config(redis_url: str, prefix: str, **overrides) -> TrainingConfig:
+    values = {
+        "spec": EnvSpec(track="racecraft_oval", action_space=DISCRETE),
+        "hyperparameters": parse_hyperparameters(
+            {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}
+        ),
+        "max_minutes": 60,  # the hooks stop it, however loaded the machine is
+        "reward_source": REWARD,
+        "eval_episodes": 2,
+        "rollouts": StreamRollouts(redis_url=redis_url, workers=2, prefix=prefix),
+    }
+    values.update(overrides)
+    return TrainingConfig(**values)
+
+
+@pytest.mark.slow
+def test_streamed_iterations_with_evaluations_and_live_frames(redis_url, settings):
+    config = _config(redis_url, settings.REDIS_PREFIX)
+    assert streamed(config)
+    hooks = Collect(iterations=2, watch=True)
+    summary = train(config, hooks)
+    # Every finished update gets its row: the one after the stop request too.
+    assert summary.stopped_by == "user" and summary.iterations >= 2
+    assert [r.iteration for r in hooks.results] == list(range(1, summary.iterations + 1))
+    print([(r.rollout_s, r.update_s, r.eval_s, r.evaluation.progress) for r in hooks.results])
+    for result in hooks.results:
+        assert result.episodes == 4  # the quota, once each
+        assert result.steps > 0 and result.rollout_s > 0 and result.update_s > 0
+        assert len(result.evaluation.progress) <= 2
+        assert all(0.0 <= p <= 100.0 for p in result.evaluation.progress)
+    assert hooks.results[0].best
+    assert len(hooks.episodes) >= 8
+    assert all(len(row) == 20 for row in hooks.rows[0])  # 19 sim-trace values + the car
+    assert hooks.results[1].total_steps == hooks.results[0].total_steps + hooks.results[1].steps
+    # Frames say what is happening, from the first iteration's training episodes on.
+    assert hooks.frames, "no live frame arrived"
+    assert {f["phase"] for f in hooks.frames} <= {"training", "evaluation"}
+    assert any(f["phase"] == "training" and f["iteration"] >= 1 for f in hooks.frames)
+    assert all(f["camera"].dtype == np.uint8 and f["camera"][:2].tolist() == [0xFF, 0xD8]
+               for f in hooks.frames)  # fmt: skip
+    metadata = build_metadata(action_space=DISCRETE, sensor=["FRONT_FACING_CAMERA"],
+                              neural_network="RACECRAFT_LEAN_CNN")  # fmt: skip
+    model = load_checkpoint(hooks.checkpoints[-1], metadata)  # nothing unpickled
+    assert model.num_timesteps == hooks.results[-1].total_steps
+
+
+@pytest.mark.slow
+def test_streamed_training_resumes_from_a_checkpoint(redis_url, settings):
+    first = Collect(iterations=1)
+    train(_config(redis_url, settings.REDIS_PREFIX), first)
+    again = Collect(iterations=1)
+    train(_config(redis_url, settings.REDIS_PREFIX, initial_checkpoint=first.checkpoints[0]),
+          again)  # fmt: skip
+    assert again.results[0].total_steps > first.results[0].total_steps  # steps carried on
+
+
+@pytest.mark.slow
+def test_a_reward_error_in_a_simulation_worker_is_a_clear_error(redis_url, settings):
+    from training.sandbox import RewardFunctionError
+
+    bad = "def reward_function(params):\n    return 1.0 / 0\n"
+    with pytest.raises(RewardFunctionError, match="ZeroDivisionError") as caught:
+        train(_config(redis_url, settings.REDIS_PREFIX, reward_source=bad), Collect(1))
+    assert caught.value.error.line == 2  # the job names the line, as with lockstep rollouts
+
+
+CONTINUOUS = {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 3.0}}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("actions", [DISCRETE, CONTINUOUS], ids=["discrete", "continuous"])
+def test_a_streamed_episode_is_on_policy_in_the_trainers_buffer(redis_url, settings, actions):
+    """What a worker computed (log-probabilities, values) is what the trainer's copy of the
+    same policy gives for the buffer's observations and actions: the trip through the stream
+    (compression, channel order, action encoding, chunks) loses nothing PPO relies on."""
+    import dataclasses
+    import uuid
+
+    from training.rl.hyperparams import Hyperparameters
+    from training.rl.simulation import SimulationWorker
+    from training.rl.streamed import rollout_buffer
+    from training.rollout.streams import Session, read_chunk
+
+    spec = EnvSpec(track="racecraft_oval", action_space=actions)
+    session = Session(redis_url, settings.REDIS_PREFIX, uuid.uuid4().hex)
+    session.create()
+    session.r.set(session.keys.trainer, 1, ex=60)
+    hp = dataclasses.asdict(Hyperparameters())
+    worker = SimulationWorker(session, "w0", spec=spec, eval_spec=spec, reward_source=REWARD,
+                              algorithm="clipped_ppo", network="RACECRAFT_LEAN_CNN",
+                              hyperparameters=hp, seed=1)  # fmt: skip
+    try:
+        worker.version = 0
+        worker.beat.start()
+        assert worker.training_episode("0:0")
+        model = worker.model
+        dim = 0 if actions is DISCRETE else 2
+        chunks = [read_chunk(m, (120, 160, 1), dim) for _, m in session.read("t", 1000)]
+        assert chunks[-1].last and all(c.ticket == "0:0" for c in chunks)
+        buffer = rollout_buffer(model, [chunks])
+        assert buffer.buffer_size == sum(c.steps for c in chunks)
+        data = next(buffer.get(None))
+        taken = data.actions.long().flatten() if dim == 0 else data.actions
+        with torch.no_grad():
+            values, log_probs, _ = model.policy.evaluate_actions(data.observations, taken)
+        assert torch.allclose(log_probs, data.old_log_prob, atol=1e-4)
+        assert torch.allclose(values.flatten(), data.old_values, atol=1e-4)
+    finally:
+        worker.close()
+        session.cleanup()
+        session.close()
+
+
+def _chunk(ticket: str, attempt: str, seq: int, *, version: int = 0, last: bool = True) -> dict:
+    from training.rollout.streams import chunk_message
+
+    steps = 3
+    return chunk_message(
+        ticket=ticket, attempt=attempt, worker="w", version=version, seq=seq,
+        obs=np.zeros((steps, 120, 160, 1), np.uint8), actions=np.zeros(steps),
+        log_probs=np.zeros(steps), values=np.zeros(steps), rewards=np.ones(steps),
+        infos=[{"status": "in_progress"}] * steps, last=last, terminated=True,
+    )  # fmt: skip
+
+
+def test_the_trainer_counts_an_episode_once_and_only_whole_and_current(redis_url, settings):
+    """Without workers: chunk messages as a dead, a slow and a repeated worker would send."""
+    from training.rl.streamed import StreamedTrainingLoop
+
+    loop = StreamedTrainingLoop(_config(redis_url, settings.REDIS_PREFIX), Collect(1))
+    try:
+        loop.counted, loop._partial, loop._rows, loop._episode_stats = {}, {}, [], []
+        loop._take(_chunk("0:0", "dead", 0, last=False), version=0, quota=2)  # then it died
+        loop._take(_chunk("0:0", "again", 0, last=False), version=0, quota=2)  # driven again
+        loop._take(_chunk("0:0", "again", 2), version=0, quota=2)  # a gap: not whole
+        assert loop.counted == {}
+        loop._take(_chunk("0:1", "late", 0, version=1), version=0, quota=2)  # not this version
+        loop._take(_chunk("0:0", "third", 0, last=False), version=0, quota=2)
+        loop._take(_chunk("0:0", "third", 1), version=0, quota=2)
+        assert list(loop.counted) == ["0:0"] and len(loop.counted["0:0"]) == 2
+        loop._take(_chunk("0:0", "dead", 1), version=0, quota=2)  # a late copy of a counted one
+        assert list(loop.counted) == ["0:0"] and loop.counted_tickets == ["0:0"]
+    finally:
+        loop.close()

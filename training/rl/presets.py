@@ -1,0 +1,100 @@
+"""Starting points for a new model: DeepRacer's defaults, and a racing preset for fast laps.
+
+One place for this knowledge: the create-model wizard offers them ("Start from"), the command
+line takes ``--preset``, and the benchmarks (bench/bench_training.py, bench/bench_imported.py)
+train with exactly what a user gets. A preset names its example reward by id (the files live
+in :mod:`training.rewards.examples`, a layer above this one: read them with
+``example_source(preset.reward_example)``).
+
+Why the racing preset aims at a fast lap and DeepRacer's defaults cannot: at 1.0 m/s at most,
+a lap of re:Invent 2018 (17.7 m along the centre line) takes 17.7 s however well the car
+learns; 3.0 m/s leaves room for laps under 10 s. Following the centre line pays for staying
+on the track, not for getting round it, so the reward pays speed along the track instead. A
+discount of 0.99 weighs about 100 steps (7 simulated seconds) ahead: far enough to brake for
+a bend; 0.999 weighs about 1000 (67 s, several laps), so each reward's credit is spread over
+far more steps and takes more experience to sort out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from racing.actions import DEFAULT_DISCRETE
+from training.rl.hyperparams import Hyperparameters
+from training.rl.policies import LEAN
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A model's starting configuration; ``label`` and ``summary`` say what it is to a user.
+
+    ``action_space`` is DeepRacer's discrete list (``steering_angle`` degrees, ``speed`` m/s),
+    ``reward_example`` an id of :data:`training.rewards.examples.EXAMPLES`.
+    """
+
+    id: str
+    label: str
+    summary: str
+    action_space: tuple[dict, ...]
+    reward_example: str
+    hyperparameters: Hyperparameters = field(default_factory=Hyperparameters)
+    algorithm: str = "clipped_ppo"
+    network: str = LEAN
+
+    def actions(self) -> list[dict]:
+        """The action space as a fresh list (model_create and EnvSpec take lists)."""
+        return [dict(a) for a in self.action_space]
+
+
+DEEPRACER_DEFAULTS = Preset(
+    id="deepracer_defaults",
+    label="DeepRacer's defaults",
+    summary=(
+        "What the AWS console starts you with: 5 steering angles × 0.5 and 1.0 m/s, the "
+        "follow-the-centre-line reward, discount 0.999, 20 episodes per update. Learns a "
+        "clean lap soon, but a slow one: at 1 m/s a lap of re:Invent 2018 takes 18 s at best."
+    ),
+    action_space=tuple(DEFAULT_DISCRETE),
+    reward_example="follow_center_line",
+)
+
+RACING = Preset(
+    id="racing",
+    label="Racing preset (fast laps soon)",
+    summary=(
+        "Built for a fast lap soon: 5 steering angles × 1.5 and 3.0 m/s (room for laps under "
+        "10 s on re:Invent 2018), a reward for speed along the track, discount 0.99 (looks "
+        "7 s ahead), 20 episodes per update."
+    ),
+    action_space=tuple(
+        {"steering_angle": steer, "speed": speed}
+        for steer in (-30.0, -15.0, 0.0, 15.0, 30.0)
+        for speed in (1.5, 3.0)
+    ),
+    reward_example="speed_along_track",
+    hyperparameters=Hyperparameters(
+        batch_size=64,
+        num_epochs=10,
+        lr=3e-4,
+        discount_factor=0.99,
+        num_episodes_between_training=20,
+    ),
+)
+
+PRESETS: tuple[Preset, ...] = (DEEPRACER_DEFAULTS, RACING)
+DEFAULT_PRESET = DEEPRACER_DEFAULTS.id
+
+
+class UnknownPreset(KeyError):
+    """No preset has this id; the message lists the ones there are."""
+
+    def __str__(self) -> str:
+        return f"unknown preset {self.args[0]!r}: use one of {', '.join(p.id for p in PRESETS)}"
+
+
+def preset(preset_id: str) -> Preset:
+    """The preset ``preset_id``; raises :class:`UnknownPreset`."""
+    for candidate in PRESETS:
+        if candidate.id == preset_id:
+            return candidate
+    raise UnknownPreset(preset_id)

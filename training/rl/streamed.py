@@ -1,0 +1,544 @@
+"""The trainer's side of streamed training (issue 14): PPO fed by simulation workers that own
+their episodes (:mod:`training.rl.simulation`), through Redis streams
+(:mod:`training.rollout.streams`).
+
+One iteration: the trainer publishes policy version v with ``num_episodes_between_training``
+episode tickets and ``eval_episodes`` evaluation tickets; workers drive the training episodes
+with v and stream them back; once the quota is in, the trainer builds PPO's rollout buffer from
+those episodes (GAE here, with the values the workers computed and, for an episode cut by the
+time limit, the bootstrap value of its last observation), updates, and publishes v + 1. Workers
+that find no training ticket left run v's evaluation laps meanwhile, so evaluation overlaps the
+update and the trainer never waits for one: iteration i's metrics row (checkpoint v_i and its
+evaluation) goes to the hooks when v_i's laps are in, usually during the next rollout.
+
+Only experience of the current version is learnt from, so PPO stays exactly on-policy (its
+log-probabilities and values are the current policy's). DeepRacer instead lets the rollout of
+v + 1 start on v while the update runs, learning one version late through PPO's clipped ratio;
+we keep the simulation busy with evaluation laps instead of stale training episodes. Unclaimed
+evaluation laps of v are withdrawn when v + 1 is published: a short update may evaluate v on
+fewer laps than asked (its row says how many, one progress per lap).
+
+A worker that dies mid-episode (its heartbeat lapses, or its local process exits) has its
+claimed tickets put back, so another worker drives them, and it is started again; an episode is
+counted once, by ticket, on its last chunk. A trainer that dies leaves its last checkpoint; its
+workers end when its heartbeat stops, and the job resumes from the checkpoint with a new session.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import logging
+import threading
+import time
+import uuid
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from training.rl.algorithms import build_model, load_model, set_torch_threads
+from training.rl.runner import (
+    EvaluationOutcome,
+    IterationResult,
+    TrainingConfig,
+    TrainingHooks,
+    TrainingSummary,
+    evaluation_spec,
+)
+from training.rl.runner import train as train_lockstep
+from training.rl.simulation import launch_local
+from training.rollout.streams import ALIVE_TTL_S, Chunk, Session, StreamError, read_chunk
+from training.rollout.vecenv import RolloutError
+from training.sandbox import RewardFunctionError
+from training.sandbox.errors import RewardError
+
+log = logging.getLogger(__name__)
+START_TIMEOUT_S = 120.0
+"""No simulation worker alive this long after the start: a clear error."""
+MAX_RESTARTS = 3
+"""Times each worker slot is started again after its worker died."""
+CHECK_WORKERS_S = 0.5
+
+
+@dataclass
+class _Slot:
+    """One simulation worker slot: the worker now serving it and its history."""
+
+    index: int
+    worker: str = ""
+    process: object | None = None
+    launched_at: float = 0.0
+    seen_alive: bool = False
+    restarts: int = 0
+    dead: bool = False
+
+
+@dataclass
+class _PendingRow:
+    """An iteration whose evaluation laps are still being driven."""
+
+    version: int
+    result: IterationResult
+    checkpoint: bytes
+    rows: list[list]
+    expected: int
+    laps: dict[str, dict] = field(default_factory=dict)
+
+    def complete(self) -> bool:
+        return len(self.laps) >= self.expected
+
+
+def episode_advantages(rewards: np.ndarray, values: np.ndarray, *, terminated: bool,
+                       bootstrap: float, gamma: float, lam: float) -> np.ndarray:  # fmt: skip
+    """GAE(λ) advantages of one whole episode. A terminated episode's last step has no future;
+    one cut by the time limit bootstraps from the value of its last observation (as SB3 does)."""
+    n = len(rewards)
+    advantages = np.zeros(n, np.float32)
+    last = 0.0
+    for t in reversed(range(n)):
+        next_value = (0.0 if terminated else bootstrap) if t == n - 1 else values[t + 1]
+        delta = rewards[t] + gamma * next_value - values[t]
+        last = delta + (gamma * lam * last if t < n - 1 else 0.0)
+        advantages[t] = last
+    return advantages
+
+
+def rollout_buffer(model, episodes: list[list[Chunk]]) -> RolloutBuffer:
+    """PPO's rollout buffer (one env, the episodes one after another) from whole episodes."""
+    parts = [_episode_arrays(model, chunks) for chunks in episodes]
+    size = sum(len(p["rewards"]) for p in parts)
+    buffer = RolloutBuffer(size, model.observation_space, model.action_space, device=model.device,
+                           gamma=model.gamma, gae_lambda=model.gae_lambda, n_envs=1)  # fmt: skip
+    for name in ("observations", "actions", "rewards", "values", "log_probs", "advantages",
+                 "returns", "episode_starts"):  # fmt: skip
+        data = np.concatenate([p[name] for p in parts])
+        target = getattr(buffer, name)
+        target[:] = data.reshape(target.shape)
+    buffer.pos, buffer.full = size, True
+    return buffer
+
+
+def _episode_arrays(model, chunks: list[Chunk]) -> dict[str, np.ndarray]:
+    obs = np.concatenate([c.obs for c in chunks])
+    shape = model.observation_space.shape
+    if obs.shape[1:] != shape:  # channel-last camera frames, as SB3's VecTransposeImage does
+        obs = np.transpose(obs, (0, 3, 1, 2))
+    rewards = np.concatenate([c.rewards for c in chunks])
+    values = np.concatenate([c.values for c in chunks])
+    last = chunks[-1]
+    advantages = episode_advantages(rewards, values, terminated=last.terminated,
+                                    bootstrap=last.bootstrap, gamma=model.gamma,
+                                    lam=model.gae_lambda)  # fmt: skip
+    starts = np.zeros(len(rewards), np.float32)
+    starts[0] = 1.0
+    return {
+        "observations": obs, "actions": np.concatenate([c.actions for c in chunks]),
+        "rewards": rewards, "values": values,
+        "log_probs": np.concatenate([c.log_probs for c in chunks]),
+        "advantages": advantages, "returns": advantages + values, "episode_starts": starts,
+    }  # fmt: skip
+
+
+def streamed(config: TrainingConfig) -> bool:
+    """Whether ``config`` trains with simulation workers that own their episodes: PPO on a
+    user's reward with a :class:`~training.rollout.backends.StreamRollouts` backend. SAC learns
+    as it drives, and a trusted in-process reward cannot travel: both step envs in lockstep."""
+    return (
+        bool(getattr(config.rollouts, "streamed", False))
+        and config.algorithm == "clipped_ppo"
+        and config.reward_source is not None
+    )
+
+
+def train(config: TrainingConfig, hooks: TrainingHooks | None = None) -> TrainingSummary:
+    """Train until ``config.max_minutes`` pass or ``hooks.should_stop()`` says so: streamed
+    when :func:`streamed` says so, else in lockstep (:func:`training.rl.runner.train`)."""
+    if streamed(config):
+        return StreamedTrainingLoop(config, hooks).run()
+    return train_lockstep(config, hooks)
+
+
+class StreamedTrainingLoop:
+    """Runs iterations until the time limit or a stop request (see the module's docstring)."""
+
+    def __init__(self, config: TrainingConfig, hooks: TrainingHooks | None = None) -> None:
+        self.config = config
+        self.hooks = hooks or TrainingHooks()
+        self.backend = config.rollouts
+        self.started = time.monotonic()
+        self.deadline = self.started + config.max_minutes * 60
+        self._stop: str | None = None
+        self.episodes_total = 0
+        self.deaths = 0
+        self.requeued = 0
+        set_torch_threads(config.torch_threads)
+        # The spaces come from a local env (never from a worker); it is never stepped.
+        self._spaces = DummyVecEnv([lambda: config.spec.make(None)])
+        hp = config.hyperparameters
+        if config.initial_checkpoint is not None:
+            self.model = load_model(config.algorithm, config.initial_checkpoint, self._spaces, hp,
+                                    network=config.network, seed=config.seed)  # fmt: skip
+        else:
+            self.model = build_model(config.algorithm, self._spaces, hp, network=config.network,
+                                     seed=config.seed)  # fmt: skip
+        self.model.set_logger(Logger(folder=None, output_formats=[]))
+        obs_space = self._spaces.observation_space
+        if not isinstance(obs_space, spaces.Box):
+            raise RolloutError("streamed training needs a camera-only observation")
+        self.obs_shape = tuple(obs_space.shape)
+        act = self.model.action_space
+        self.action_dim = 0 if isinstance(act, spaces.Discrete) else int(np.prod(act.shape))
+        self.session = Session(self.backend.redis_url, self.backend.prefix, uuid.uuid4().hex)
+        self.session.create()
+        self.session.r.set(self.session.keys.trainer, 1, ex=30)
+        self.slots = [_Slot(i) for i in range(max(1, int(self.backend.workers)))]
+        self.pending: deque[_PendingRow] = deque()
+        self.counted: dict[str, list[Chunk]] = {}
+        self.counted_tickets: list[str] = []  # every episode counted, by ticket, in order
+        self._partial: dict[str, list[Chunk]] = {}
+        self._checked = 0.0
+        self._relay_stop = threading.Event()
+        self._relay = threading.Thread(target=self._relay_frames, name="frames", daemon=True)
+
+    # ---------------------------------------------------------------- workers
+    def _launch(self, slot: _Slot) -> None:
+        cfg = self.config
+        slot.worker = f"w{slot.index}-{uuid.uuid4().hex[:8]}"
+        slot.seen_alive, slot.launched_at = False, time.monotonic()
+        kwargs = {
+            "redis_url": self.backend.redis_url, "prefix": self.backend.prefix,
+            "session": self.session.keys.session, "worker": slot.worker,
+            # Multi-track: each worker its own track, as DeepRacer-for-Cloud's workers.
+            "spec": cfg.spec.for_env(slot.index).to_json(),
+            "eval_spec": evaluation_spec(cfg).for_env(slot.index).to_json(),
+            "reward_source": cfg.reward_source, "algorithm": cfg.algorithm,
+            "network": cfg.network,
+            "hyperparameters": dataclasses.asdict(cfg.hyperparameters),
+            "seed": cfg.seed + 1000 * (slot.index + 1) + 100_000 * slot.restarts,
+        }  # fmt: skip
+        launch = self.backend.launch or launch_local
+        slot.process = launch(**kwargs)
+
+    def _exited(self, slot: _Slot) -> bool:
+        poll = getattr(slot.process, "poll", None)
+        return poll is not None and poll() is not None
+
+    def check_workers(self, version: int) -> None:
+        """Requeue the tickets of dead workers, start them again; fail when none can run."""
+        now = time.monotonic()
+        if now - self._checked < CHECK_WORKERS_S:
+            return
+        self._checked = now
+        for slot in self.slots:
+            if slot.dead:
+                continue
+            alive = self.session.alive(slot.worker) and not self._exited(slot)
+            if alive:
+                slot.seen_alive = True
+                continue
+            if not slot.seen_alive and not self._exited(slot):
+                continue  # still starting
+            self._worker_died(slot, version)
+        if all(s.dead for s in self.slots):
+            raise RolloutError("every simulation worker stopped; see the worker logs")
+        if not any(s.seen_alive for s in self.slots) and now - self.started > START_TIMEOUT_S:
+            raise RolloutError(
+                f"no simulation worker started within {START_TIMEOUT_S:.0f} s: start one with "
+                "`celery -A console worker -Q simulation`"
+            )
+
+    def _worker_died(self, slot: _Slot, version: int) -> None:
+        self.deaths += 1
+        self.session.revoke(slot.worker)  # should it still run, it stops and gives back
+        self.session.r.delete(self.session.keys.alive(slot.worker))
+        requeued, lost = self.session.requeue(slot.worker, set(self.counted), version)
+        self.requeued += requeued
+        for text in lost:
+            lap_version = int(text.split(":")[1])
+            for row in self.pending:
+                if row.version == lap_version:
+                    row.expected -= 1
+        log.warning("simulation worker %s died; %d episode(s) go to another worker",
+                    slot.worker, requeued)  # fmt: skip
+        if hasattr(slot.process, "kill") and not self._exited(slot):
+            _kill(slot.process)  # a local worker that hangs
+        if slot.restarts >= MAX_RESTARTS:
+            slot.dead = True
+            return
+        slot.restarts += 1
+        self._launch(slot)
+
+    # ---------------------------------------------------------------- frames
+    def _relay_frames(self) -> None:
+        """Live frames from the watched worker to the hooks, and the trainer's heartbeat, on a
+        thread of its own: video goes on while the trainer updates."""
+        s = Session(self.backend.redis_url, self.backend.prefix, self.session.keys.session)
+        last_id, beat = b"$", 0.0
+        try:
+            while not self._relay_stop.is_set():
+                try:
+                    now = time.monotonic()
+                    watched = self.hooks.frames_wanted()
+                    if now - beat >= 1.0:
+                        beat = now
+                        s.r.set(s.keys.trainer, 1, ex=30)
+                        s.set_watch(self._frame_worker() if watched else None)
+                    for entry_id, msg in s.read_frames(last_id, block_ms=250):
+                        last_id = entry_id
+                        frame = _frame(msg)
+                        if watched and frame is not None:
+                            self.hooks.on_frame(frame)
+                except Exception:  # noqa: BLE001 - video is best effort; the beat goes on
+                    log.warning("the frame relay failed; retrying", exc_info=True)
+                    self._relay_stop.wait(1.0)
+        finally:
+            s.close()
+
+    def _frame_worker(self) -> str | None:
+        for slot in self.slots:
+            if slot.seen_alive and not slot.dead:
+                return slot.worker
+        return None
+
+    # ---------------------------------------------------------------- the streams
+    def stop_reason(self) -> str | None:
+        if self._stop is None:
+            if time.monotonic() >= self.deadline:
+                self._stop = "time_limit"
+            elif self.hooks.should_stop():
+                self._stop = "user"
+        return self._stop
+
+    def collect(self, version: int, quota: int) -> list[list[Chunk]] | None:
+        """The ``quota`` episodes of ``version``, in the order they finished; None if stopped."""
+        self.counted, self._partial = {}, {}
+        while len(self.counted) < quota:
+            if self.stop_reason():
+                return None
+            for entry_id, msg in self.session.read("trainer", block_ms=200):
+                self.session.ack(entry_id)
+                self._take(msg, version, quota)
+            self._emit_ready()
+            self.check_workers(version)  # after the stream: a worker's last words come first
+        return list(self.counted.values())
+
+    def _take(self, msg: dict | StreamError, version: int, quota: int) -> None:
+        if isinstance(msg, StreamError):
+            raise RolloutError(str(msg))
+        kind = msg["kind"]
+        if kind == "error":
+            raise _worker_error(msg)
+        if kind == "eval":
+            self._take_lap(msg)
+        elif kind == "chunk":
+            chunk = read_chunk(msg, self.obs_shape, self.action_dim)
+            if chunk.version != version or chunk.ticket in self.counted:
+                self._partial.pop(chunk.attempt, None)
+                return  # another version's, or a ticket already counted: never twice
+            parts = self._partial.setdefault(chunk.attempt, [])
+            if chunk.seq != len(parts):
+                self._partial.pop(chunk.attempt, None)  # a gap: the ticket is driven again
+                return
+            parts.append(chunk)
+            if chunk.last and len(self.counted) < quota:
+                self.counted[chunk.ticket] = self._partial.pop(chunk.attempt)
+                self.counted_tickets.append(chunk.ticket)
+                self._count(parts)
+
+    def _count(self, chunks: list[Chunk]) -> None:
+        """Bookkeeping of a counted episode: its trace rows and metrics entry."""
+        self.episodes_total += 1
+        for chunk in chunks:
+            for info in chunk.infos:
+                trace = info.get("trace")
+                if isinstance(trace, list):
+                    self._rows.append(trace)
+                entry = info.get("episode_entry")
+                if isinstance(entry, dict):
+                    self._episode_stats.append(
+                        (float(entry.get("total_reward", 0.0)), float(entry.get("progress", 0.0)))
+                    )
+                    self.hooks.on_episode(entry)
+
+    def _take_lap(self, msg: dict) -> None:
+        for row in self.pending:
+            if row.version == msg.get("version"):
+                ticket = str(msg.get("ticket", ""))[:64]
+                if ticket not in row.laps:
+                    row.laps[ticket] = msg
+                return
+
+    def _emit_ready(self, final: bool = False) -> None:
+        while self.pending and (final or self.pending[0].complete()):
+            self._emit(self.pending.popleft())
+
+    def _emit(self, row: _PendingRow) -> None:
+        laps = sorted(row.laps.values(), key=lambda m: str(m.get("ticket")))
+        outcome = EvaluationOutcome(
+            progress=[_num(m.get("progress")) for m in laps],
+            statuses=[str(m.get("status", ""))[:32] for m in laps],
+            lap_times=[[_num(t) for t in m.get("lap_times", [])][:100] for m in laps],
+            rewards=[_num(m.get("reward")) for m in laps],
+        )
+        result = row.result
+        result.evaluation = outcome
+        result.eval_s = sum(_num(m.get("wall_s")) for m in laps)
+        result.elapsed_s = time.monotonic() - self.started
+        if outcome.mean_progress > self.best_progress:
+            self.best_progress, self.best_iteration = outcome.mean_progress, result.iteration
+            result.best = True
+        self.emitted += 1
+        self.hooks.on_iteration(result, row.checkpoint, row.rows)
+
+    # ---------------------------------------------------------------- the update
+    def update(self, episodes: list[list[Chunk]]) -> int:
+        model = self.model
+        model.rollout_buffer = rollout_buffer(model, episodes)
+        steps = model.rollout_buffer.buffer_size
+        model.num_timesteps += steps
+        model.train()
+        return steps
+
+    def weights(self) -> dict[str, np.ndarray]:
+        return {k: v.detach().cpu().numpy() for k, v in self.model.policy.state_dict().items()}
+
+    def _publish(self, version: int) -> None:
+        n = self.config.eval_episodes
+        if self.config.eval_laps > 1 or self.config.eval_from_start_line:
+            evals = [{"start_progress": -1.0} for _ in range(n)]
+        else:
+            evals = [{"start_progress": 100.0 * i / n} for i in range(n)]
+        quota = self.config.hyperparameters.num_episodes_between_training
+        self.session.publish_policy(version, self.weights(), episodes=quota,
+                                    evals=evals if version > 0 else [])  # fmt: skip
+
+    def checkpoint(self) -> bytes:
+        buffer = io.BytesIO()
+        self.model.save(buffer)
+        return buffer.getvalue()
+
+    def run(self) -> TrainingSummary:
+        self.best_progress, self.best_iteration = -1.0, None
+        if self.config.best_score is not None:
+            self.best_progress = float(self.config.best_score)
+        self.emitted = 0
+        quota = self.config.hyperparameters.num_episodes_between_training
+        version, iteration = 0, 0
+        try:
+            self._publish(0)
+            for slot in self.slots:
+                self._launch(slot)
+            self._relay.start()
+            while not self.stop_reason():
+                t0 = time.monotonic()
+                self._rows, self._episode_stats = [], []
+                episodes = self.collect(version, quota)
+                if episodes is None:
+                    break  # an interrupted rollout is not learnt from
+                rows, stats = self._rows, self._episode_stats
+                t1 = time.monotonic()
+                steps = self.update(episodes)
+                version += 1
+                iteration += 1
+                self._publish(version)
+                dropped = self.session.withdraw(version - 1)
+                t2 = time.monotonic()
+                rewards = [r for r, _ in stats]
+                progress = [p for _, p in stats]
+                result = IterationResult(
+                    iteration=iteration, episodes=len(episodes), steps=steps,
+                    total_steps=self.model.num_timesteps,
+                    train_reward=float(np.mean(rewards)) if rewards else 0.0,
+                    train_progress=float(np.mean(progress)) if progress else 0.0,
+                    evaluation=EvaluationOutcome([], [], [], []), elapsed_s=0.0,
+                    rollout_s=t1 - t0, update_s=t2 - t1, eval_s=0.0,
+                )  # fmt: skip
+                # v's laps were published with it; those not started are withdrawn now.
+                for row in self.pending:
+                    if row.version == version - 1:
+                        row.expected -= dropped
+                self.pending.append(_PendingRow(version, result, self.checkpoint(), rows,
+                                                expected=self.config.eval_episodes))  # fmt: skip
+                self._emit_ready()
+            self._emit_ready(final=True)
+        finally:
+            self.close()
+        return TrainingSummary(
+            iterations=self.emitted,
+            total_steps=self.model.num_timesteps,
+            best_iteration=self.best_iteration,
+            best_eval_progress=max(self.best_progress, 0.0),
+            stopped_by=self._stop or "finished",
+            elapsed_s=time.monotonic() - self.started,
+        )
+
+    def close(self) -> None:
+        try:
+            self.session.stop()
+        except Exception:  # noqa: BLE001 - closing must not hide the real error
+            log.warning("could not tell the simulation workers to stop", exc_info=True)
+        self._relay_stop.set()
+        if self._relay.is_alive():
+            self._relay.join(timeout=5)
+        for slot in self.slots:
+            if slot.process is not None and hasattr(slot.process, "wait"):
+                try:
+                    slot.process.wait(timeout=15)
+                except Exception:  # noqa: BLE001 - a worker that does not end is killed
+                    _kill(slot.process)
+        try:
+            self._spaces.close()
+        except Exception:  # noqa: BLE001
+            pass
+        try:
+            self.session.cleanup()
+        finally:
+            self.session.close()
+
+
+def _worker_error(msg: dict) -> Exception:
+    """The error a worker reported, as the lockstep path raises it: a reward function's error
+    with its line (:class:`RewardFunctionError`), anything else in the worker's words."""
+    if isinstance(msg.get("reward_error"), dict):
+        step = msg.get("step")
+        return RewardFunctionError(RewardError.from_dict(msg["reward_error"]),
+                                   step if type(step) is int else None)  # fmt: skip
+    text = msg.get("message")
+    return RolloutError(str(text)[:2000] if text else "a simulation worker failed")
+
+
+def _kill(process) -> None:
+    try:
+        process.kill()
+        process.wait(timeout=10)
+    except Exception:  # noqa: BLE001 - already gone
+        pass
+
+
+def _num(value) -> float:
+    return float(value) if isinstance(value, int | float) and np.isfinite(value) else 0.0
+
+
+def _frame(msg: dict) -> dict | None:
+    """A frame message checked (JPEG bytes, numbers, a known phase) for the hooks."""
+    out = {}
+    for key in ("camera", "chase"):
+        jpeg = msg.get(key)
+        if not isinstance(jpeg, np.ndarray) or jpeg.dtype != np.uint8 or jpeg.ndim != 1:
+            return None
+        out[key] = jpeg
+    phase = msg.get("phase")
+    out["phase"] = phase if phase in ("training", "evaluation") else "training"
+    for key in ("progress", "lap", "iteration", "version"):
+        out[key] = _num(msg.get(key))
+    out["lap"], out["iteration"], out["version"] = (int(out[k]) for k in
+                                                    ("lap", "iteration", "version"))  # fmt: skip
+    return out
+
+
+__all__ = ["ALIVE_TTL_S", "StreamedTrainingLoop", "episode_advantages", "rollout_buffer", "train"]
