@@ -59,7 +59,8 @@ def openvino_runner(graph: bytes, name: str):
         path = Path(folder) / "model.pb"
         path.write_bytes(graph)
         converted = ov.convert_model(str(path), input=[(f"{name}:0", [1, 120, 160, 1])])
-    config = {"INFERENCE_NUM_THREADS": 1, "NUM_STREAMS": 1}
+    # f32 as on the car's Atom: OpenVINO would pick bfloat16 by itself where the CPU has it.
+    config = {"INFERENCE_NUM_THREADS": 1, "NUM_STREAMS": 1, "INFERENCE_PRECISION_HINT": "f32"}
     request = ov.Core().compile_model(converted, "CPU", config).create_infer_request()
     return lambda frame: request.infer([frame[None]])
 

@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from tests.training.interchange.carmodel_support import (
+    CAR_PRECISION,
     CONTINUOUS,
     DISCRETE,
     randomised_model,
@@ -97,7 +98,7 @@ def test_car_graph_takes_camera_and_lidar_and_agrees(
         input=[(f"{input_name(algorithm, camera)}:0", [1, *frames.shape[1:]]),
                (f"{input_name(algorithm, lidar)}:0", [1, size])],
     )  # fmt: skip
-    compiled = ov.Core().compile_model(converted, "CPU")
+    compiled = ov.Core().compile_model(converted, "CPU", CAR_PRECISION)
     actual = np.concatenate(
         [compiled([frames[i : i + 1], readings[i : i + 1]])[compiled.output(0)]
          for i in range(len(frames))]
