@@ -14,9 +14,17 @@ from training.management.cli import (
     action_summary,
     add_owner_argument,
     add_track_argument,
-    service_errors,
 )
-from training.models import Direction
+from training.management.race_options import (
+    add_race_arguments,
+    add_sensor_argument,
+    given_sensors,
+    given_settings,
+    race_errors,
+    race_summary,
+    race_type_option,
+)
+from training.models import Direction, RaceType
 from training.rewards.examples import example_source
 from training.rl.metadata import MetadataError, ModelMetadata, build_metadata, parse_metadata
 from training.rl.presets import PRESETS, Preset, preset
@@ -99,8 +107,9 @@ class Command(BaseCommand):
         "space, sensor, algorithm, network) and optionally hyperparameters.json, or from a "
         "preset (--preset racing: fast laps soon; deepracer_defaults), whose parts any of "
         "those files replace. --also-train-on trains one model on several tracks at once. The "
-        "reward function is checked in the sandbox first, on every track. Prints the new "
-        "model's id (only the id with -v 0)."
+        "reward function is checked in the sandbox first, on every track. --race-type with "
+        "its box or bot options and --sensor make object-avoidance and head-to-bot models, "
+        "as the console's wizard does. Prints the new model's id (only the id with -v 0)."
     )
 
     def create_parser(self, prog_name: str, subcommand: str, **kwargs: Any):
@@ -157,6 +166,8 @@ class Command(BaseCommand):
         parser.add_argument(
             "--seed", type=int, default=None, help="random seed (default: a random one)"
         )
+        add_sensor_argument(parser)
+        add_race_arguments(parser, evaluation=False)
 
     def handle(self, *args: Any, **options: Any) -> None:
         chosen = preset(options["preset"]) if options["preset"] else None
@@ -179,7 +190,8 @@ class Command(BaseCommand):
         if hyperparameters is None and chosen is not None:
             hyperparameters = chosen.hyperparameters.to_json()
         extra_tracks = [track_and_direction(t) for t in options["also_train_on"]]
-        with service_errors():
+        race_type = race_type_option(options) or RaceType.TIME_TRIAL
+        with race_errors(options):
             owner = user_by_username(username=options["owner"])
             model = services.model_create(
                 owner=owner,
@@ -188,7 +200,9 @@ class Command(BaseCommand):
                 track_id=options["track"],
                 direction=options["direction"],
                 extra_tracks=extra_tracks,
-                sensors=list(metadata.sensor),
+                race_type=race_type,
+                race_config=given_settings(options),
+                sensors=given_sensors(options) or list(metadata.sensor),
                 action_space=metadata.actions.to_metadata(),
                 algorithm=metadata.training_algorithm,
                 neural_network=metadata.neural_network,
@@ -204,6 +218,10 @@ class Command(BaseCommand):
             f"Created model {model.pk}: {model.name} ({model.algorithm}, {action_summary(model)}, "
             f"{', '.join(model.sensors)}, {model.neural_network}) on "
             f"{' + '.join(f'{t} ({d})' for t, d in model.training_tracks)}, "
+            f"{race_summary(model.race_type, model.race_config)}, "
             f"{model.max_minutes} min of training"
         )
+        advice = services.sensor_advice(model.race_type, model.sensors)
+        if advice:
+            self.stdout.write(f"Note: {advice}")
         self.stdout.write(f"Train it with: manage.py racecraft_train {model.pk}")

@@ -17,7 +17,12 @@ from training.management.cli import (
     require_completed,
     results_table,
     run_or_follow,
-    service_errors,
+)
+from training.management.race_options import (
+    add_race_arguments,
+    evaluation_race,
+    race_errors,
+    race_summary,
 )
 from training.models import Direction
 from training.worker.evaluation import run_evaluation_job
@@ -31,7 +36,9 @@ class Command(BaseCommand):
         "worker runs it and this command follows it. There is no --seed: an evaluation is "
         "deterministic (the car starts on the start line, the simulator is reset with seed 0 "
         "and the policy takes its most likely action), so the same model and settings drive "
-        "the same laps. The training seed is racecraft_create_model --seed."
+        "the same laps. The training seed is racecraft_create_model --seed. The race is the "
+        "model's own (its boxes or bot cars) unless --race-type or a box or bot option "
+        "changes it, as the console's evaluation form does."
     )
 
     def add_arguments(self, parser: ArgumentParser) -> None:
@@ -58,22 +65,26 @@ class Command(BaseCommand):
             help="seconds added per crash, 0-60 (default 5)",
         )
         add_queue_argument(parser, what="evaluation")
+        add_race_arguments(parser, evaluation=True)
 
     def handle(self, *args: Any, model_id: int, owner: str | None, queue: bool, **options: Any):
         user, model = owner_and_model(model_id, owner)
+        race_type, race_config = evaluation_race(options, model.race_type, model.race_config)
         settings = {
+            "race_type": race_type,
+            "race_config": race_config,
             "track_id": options["track"],
             "direction": options["direction"],
             "laps": options["laps"],
             "off_track_penalty_s": options["off_track_penalty"],
             "crash_penalty_s": options["crash_penalty"],
         }
-        with service_errors():
+        with race_errors(options):
             job = services.evaluation_start(model=model, user=user, enqueue=queue, **settings)
         where = "queued for a worker" if queue else "running here"
         self.stdout.write(
             f"Evaluation {job.pk} of model {model.pk} ({model.name}): {where}, {job.laps} laps "
-            f"on {job.track_id} ({job.direction})"
+            f"on {job.track_id} ({job.direction}), {race_summary(job.race_type, job.race_config)}"
         )
         done = run_or_follow(job=job, queue=queue, user=user, run=run_evaluation_job,
                              progress=evaluation_progress, out=self.stdout)  # fmt: skip
