@@ -14,6 +14,7 @@ from django.utils import timezone
 from training import live, services
 from training.interchange.layout import evaluation_stamp
 from training.models import EvaluationJob
+from training.rl.algorithms import set_torch_threads
 from training.rl.checkpoints import CheckpointError, load_checkpoint
 from training.rl.evaluation import EvaluationSettings, evaluate, sb3_policy
 from training.services.racing import race_config
@@ -31,6 +32,9 @@ def run_evaluation_job(evaluation_id: int, worker: str = "") -> str:
     job = services.job_claim(job_model=EvaluationJob, job_id=evaluation_id, worker=worker)
     if job is None:
         return "skipped"
+    # One car, one observation a step: a second thread only waits, and on cores shared with
+    # trainers its spinning costs far more than it gives.
+    set_torch_threads(1)
     model = job.model
     group = live.job_group("evaluation", job.pk)
     store, keys = get_store(), keys_for(model.pk)
