@@ -3,8 +3,8 @@ run, the longest gap between two frames, and what 20 viewers cost the worker (en
 frame), for lockstep simulation (the console's default) and streamed simulation
 (``RACECRAFT_SIMULATION=streams``).
 
-    .venv/bin/python bench/bench_video.py [--seconds 60] [--viewers 20] [--episodes 20]
-                                          [--modes lockstep,streams]
+    .venv/bin/python bench/bench_video.py [--seconds 45] [--iterations 1] [--max-seconds 180]
+                                          [--viewers 20] [--episodes 20] [--modes lockstep,streams]
 
 Each mode runs in a child process of its own: `manage.py up` on loopback (daphne, the Celery
 workers, an embedded Redis) with a fresh SQLite database and store in a temporary folder, one
@@ -13,14 +13,17 @@ default) whose training starts at once. Then ``--viewers - 1`` plain browser web
 Chromium page, the session cookie, counting the frame messages) and the model's page itself
 (Chromium through Playwright, /usr/bin/chromium; every websocket message it receives is
 counted and timed) watch the job. The window starts at the page's first frame and lasts
-``--seconds``; the job is then stopped and its worker's frame counts read from Redis
+``--seconds`` and until ``--iterations`` policy updates were recorded (so that it holds an
+update and, streamed, the handover to the new policy), ``--max-seconds`` at most; the job is
+then stopped and its worker's frame counts read from Redis
 (:func:`training.live.frame_counts`: frames it encoded once and sent once to the job's group).
 
 Prints a table per mode, the gaps over 1 s with the frames on either side (what the worker
 said it showed: phase, iteration, policy version), and last ``fps=``, ``max_gap_s=`` and
 ``encodes_per_frame=`` of the streamed mode with ``ratio=`` (streamed fps / lockstep fps, both
-measured in this run). About 2 x (--seconds + 60) seconds. The machine may be shared: say so
-when you quote the figures.
+measured in this run). About 5 minutes on an idle 2-core machine (longer when a policy update
+is slow); ``--iterations 0 --seconds 20 --episodes 4`` shortens it. The machine may be shared:
+say so when you quote the figures.
 """
 
 from __future__ import annotations
@@ -184,7 +187,12 @@ def watch_job(mode: str, args: argparse.Namespace, base: str) -> dict:
         print(f"[{mode}] first frame {t0 - started:.1f} s after the start", file=sys.stderr)
         finished_at: list[tuple[int, float]] = []  # (iteration, when its row was seen)
         seen = TrainingJob.objects.get(pk=job.pk).iterations
-        while time.monotonic() - t0 < args.seconds:
+        # At least --seconds, and on until --iterations policy updates were recorded (after
+        # the first, the streamed workers drive the new policy: the handover is in the window).
+        while True:
+            elapsed = time.monotonic() - t0
+            if elapsed >= args.max_seconds or (elapsed >= args.seconds and seen >= args.iterations):
+                break
             page.wait_for_timeout(500)
             n = TrainingJob.objects.get(pk=job.pk).iterations
             if n != seen:
@@ -263,8 +271,9 @@ def shown(frame: dict) -> str:
 
 def report(results: list[dict], args: argparse.Namespace) -> None:
     print(f"\nlive video, {args.viewers} viewers (1 Chromium model page + "
-          f"{args.viewers - 1} websockets), {args.seconds:.0f} s window from the first frame, "
-          f"{args.episodes} episodes per update")  # fmt: skip
+          f"{args.viewers - 1} websockets), window from the first frame: at least "
+          f"{args.seconds:.0f} s and {args.iterations} update(s), at most "
+          f"{args.max_seconds:.0f} s; {args.episodes} episodes per update")  # fmt: skip
     print(f"{'mode':<10}{'window s':>9}{'frames':>8}{'fps':>7}{'max gap s':>10}{'encoded':>9}"
           f"{'sent':>7}{'recv/viewer min/mean/max':>26}{'enc/frame':>10}")  # fmt: skip
     for r in results:
@@ -296,12 +305,15 @@ def report(results: list[dict], args: argparse.Namespace) -> None:
     if base and base is not head_r:
         line += (f" baseline_fps={base['fps']:.2f} baseline_max_gap_s={base['max_gap_s']:.2f}"
                  f" baseline_encodes_per_frame={base['encodes_per_frame']:.3f}")  # fmt: skip
-    print(f"\n{line} viewers={args.viewers} seconds={args.seconds:.0f}")
+    print(f"\n{line} viewers={args.viewers} window_s={head_r['window_s']:.0f}")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seconds", type=float, default=60.0, help="watched window per mode")
+    parser.add_argument("--seconds", type=float, default=45.0, help="shortest window per mode")
+    parser.add_argument("--iterations", type=int, default=1,
+                        help="the window lasts until this many updates were recorded")  # fmt: skip
+    parser.add_argument("--max-seconds", type=float, default=180.0, help="longest window")
     parser.add_argument("--viewers", type=int, default=20)
     parser.add_argument("--episodes", type=int, default=20, help="episodes per policy update")
     parser.add_argument("--modes", default="lockstep,streams")
@@ -314,7 +326,8 @@ def main() -> None:
     for mode in args.modes.split(","):
         out = subprocess.run(
             [sys.executable, __file__, "--one-mode", mode, "--seconds", str(args.seconds),
-             "--viewers", str(args.viewers), "--episodes", str(args.episodes)],
+             "--viewers", str(args.viewers), "--episodes", str(args.episodes),
+             "--iterations", str(args.iterations), "--max-seconds", str(args.max_seconds)],
             cwd=ROOT, stdout=subprocess.PIPE, text=True, check=False,
         )  # fmt: skip
         lines = [x for x in out.stdout.splitlines() if x.startswith(RESULT)]
