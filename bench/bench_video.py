@@ -224,23 +224,31 @@ def watch_job(mode: str, args: argparse.Namespace, base: str) -> dict:
         if counts:
             break
         time.sleep(0.5)
-    times = [t for t, _ in window]
-    gaps = []
-    for (a, fa), (b, fb) in zip(window, window[1:], strict=False):
-        gaps.append((b - a, a - t0, fa, fb))
-    gaps.append((t_stop - times[-1], times[-1] - t0, window[-1][1], {"end": "window"}))
-    longest = max(gaps, key=lambda g: g[0])
     metrics = list(IterationMetric.objects.filter(job=job).order_by("iteration").values(
         "iteration", "rollout_s", "update_s", "eval_s", "elapsed_s"))  # fmt: skip
+    stats = video_stats(window, t0, t_stop, received=received, counts=counts)
+    return {**stats, "mode": mode, "viewers_open": opened + 1, "iterations_at": finished_at,
+            "metrics": metrics}  # fmt: skip
+
+
+def video_stats(window: list[tuple[float, dict]], t0: float, t_stop: float, *,
+                received: list[int], counts: dict[str, int]) -> dict:  # fmt: skip
+    """What the viewers got: frames/s over the window ``[t0, t_stop]`` (monotonic seconds),
+    the gaps (the last one runs to the window's end), and the worker's encodes per frame a
+    viewer received (``counts`` from :func:`training.live.frame_counts`)."""
+    gaps = [(b - a, a - t0, fa, fb) for (a, fa), (b, fb) in zip(window, window[1:], strict=False)]
+    last_t, last_f = window[-1]
+    gaps.append((t_stop - last_t, last_t - t0, last_f, {"end": "window"}))
+    longest = max(gaps, key=lambda g: g[0])
     span = t_stop - t0
     encoded = counts.get("encoded", 0)
     return {
-        "mode": mode, "window_s": span, "frames": len(window), "fps": len(window) / span,
-        "max_gap_s": longest[0], "longest": longest[1:], "encoded": encoded,
-        "sent": counts.get("sent", 0), "received": received, "viewers_open": opened + 1,
+        "window_s": span, "frames": len(window), "fps": len(window) / span,
+        "max_gap_s": longest[0], "encoded": encoded, "sent": counts.get("sent", 0),
+        "received": received,
         "encodes_per_frame": encoded / statistics.mean(received) if any(received) else 0.0,
         "long_gaps": [g for g in gaps if g[0] > GAP_REPORTED_S],
-        "iterations_at": finished_at, "metrics": metrics, "timeline": timeline(window, t0, span),
+        "timeline": timeline(window, t0, span),
     }  # fmt: skip
 
 
@@ -295,17 +303,24 @@ def report(results: list[dict], args: argparse.Namespace) -> None:
         print(f"  gaps over {GAP_REPORTED_S:.0f} s: {len(gaps)}")
         for length, at, before, after in sorted(gaps, reverse=True)[:8]:
             print(f"    {length:5.2f} s at {at:6.1f} s: {shown(before)} -> {shown(after)}")
+    print(f"\n{last_line(results)} viewers={args.viewers}")
+
+
+def last_line(results: list[dict]) -> str:
+    """``fps= max_gap_s= encodes_per_frame=`` of the streamed mode (else the last one run) and
+    ``ratio=`` its fps over lockstep's, measured in the same run (0 without lockstep)."""
     by_mode = {r["mode"]: r for r in results}
-    head_r = by_mode.get("streams") or results[-1]
+    head = by_mode.get("streams") or results[-1]
     base = by_mode.get("lockstep")
-    ratio = head_r["fps"] / base["fps"] if base and base is not head_r and base["fps"] else 0.0
-    line = (f"fps={head_r['fps']:.2f} max_gap_s={head_r['max_gap_s']:.2f} "
-            f"encodes_per_frame={head_r['encodes_per_frame']:.3f} ratio={ratio:.2f} "
-            f"mode={head_r['mode']}")  # fmt: skip
-    if base and base is not head_r:
+    base = base if base is not head else None
+    ratio = head["fps"] / base["fps"] if base and base["fps"] else 0.0
+    line = (f"fps={head['fps']:.2f} max_gap_s={head['max_gap_s']:.2f} "
+            f"encodes_per_frame={head['encodes_per_frame']:.3f} ratio={ratio:.2f} "
+            f"mode={head['mode']} window_s={head['window_s']:.0f}")  # fmt: skip
+    if base:
         line += (f" baseline_fps={base['fps']:.2f} baseline_max_gap_s={base['max_gap_s']:.2f}"
                  f" baseline_encodes_per_frame={base['encodes_per_frame']:.3f}")  # fmt: skip
-    print(f"\n{line} viewers={args.viewers} window_s={head_r['window_s']:.0f}")
+    return line
 
 
 def main() -> None:
