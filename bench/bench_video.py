@@ -13,10 +13,11 @@ default) whose training starts at once. Then ``--viewers - 1`` plain browser web
 Chromium page, the session cookie, counting the frame messages) and the model's page itself
 (Chromium through Playwright, /usr/bin/chromium; every websocket message it receives is
 counted and timed) watch the job. The window starts at the page's first frame and lasts
-``--seconds`` and until ``--iterations`` policy updates were recorded (so that it holds an
-update and, streamed, the handover to the new policy), ``--max-seconds`` at most; the job is
-then stopped and its worker's frame counts read from Redis
-(:func:`training.live.frame_counts`: frames it encoded once and sent once to the job's group).
+``--seconds`` and until ``--iterations`` policy updates were recorded or, streamed, the frames
+have shown the new policy for 10 s (so that it holds an update and the handover to the new
+policy), ``--max-seconds`` at most; the job is then stopped and its worker's frame counts
+read from Redis (:func:`training.live.frame_counts`: frames it encoded once and sent once to
+the job's group).
 
 Prints a table per mode, the gaps over 1 s with the frames on either side (what the worker
 said it showed: phase, iteration, policy version), and last ``fps=``, ``max_gap_s=`` and
@@ -57,6 +58,7 @@ FIRST_FRAME_TIMEOUT_S = 300.0
 STOP_TIMEOUT_S = 180.0
 GAP_REPORTED_S = 1.0
 BUCKET_S = 10
+HANDOVER_S = 10.0
 RESULT = "RESULT "
 # The extra viewers: plain websockets in one page, counting frame messages without parsing.
 VIEWERS_JS = """([path, n]) => {
@@ -187,11 +189,16 @@ def watch_job(mode: str, args: argparse.Namespace, base: str) -> dict:
         print(f"[{mode}] first frame {t0 - started:.1f} s after the start", file=sys.stderr)
         finished_at: list[tuple[int, float]] = []  # (iteration, when its row was seen)
         seen = TrainingJob.objects.get(pk=job.pk).iterations
-        # At least --seconds, and on until --iterations policy updates were recorded (after
-        # the first, the streamed workers drive the new policy: the handover is in the window).
+        # At least --seconds, and on until --iterations policy updates were recorded or, as
+        # streamed workers record an update only after its evaluation laps, until the frames
+        # have shown that policy version for HANDOVER_S: the handover is in the window.
         while True:
             elapsed = time.monotonic() - t0
-            if elapsed >= args.max_seconds or (elapsed >= args.seconds and seen >= args.iterations):
+            handed = [t for t, f in frames if f.get("version", -1) >= args.iterations]
+            updated = seen >= args.iterations or (
+                handed and time.monotonic() - handed[0] >= HANDOVER_S
+            )
+            if elapsed >= args.max_seconds or (elapsed >= args.seconds and updated):
                 break
             page.wait_for_timeout(500)
             n = TrainingJob.objects.get(pk=job.pk).iterations
