@@ -2,11 +2,14 @@
 
 Frames are encoded by the rollout worker only while someone watches (a Redis key with a short
 TTL that the websocket consumer keeps alive), at 15 fps at most, and handed to a background
-thread that drops stale frames, so video never slows training.
+thread that drops stale frames, so video never slows training. One frame is encoded once and
+sent to the job's group once, however many viewers the group has; a publisher records how many
+frames it got and sent (:func:`frame_counts`) when it closes.
 """
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import logging
 import queue
@@ -20,6 +23,8 @@ from django.conf import settings
 
 log = logging.getLogger(__name__)
 WATCH_TTL_S = 30
+FRAME_COUNTS_TTL_S = 24 * 3600
+"""How long a closed publisher's frame counts stay readable in Redis, seconds."""
 
 
 def job_group(kind: str, job_id: int) -> str:
@@ -43,6 +48,21 @@ def mark_watching(group: str) -> None:
         log.warning("could not mark %s as watched", group)
 
 
+def _counts_key(group: str) -> str:
+    return f"{settings.REDIS_PREFIX or ''}racecraft:frames:{group}"
+
+
+def frame_counts(group: str) -> dict[str, int]:
+    """``{"encoded", "sent"}``: the frames the last closed publisher of ``group`` got from the
+    worker (each a JPEG pair, encoded once) and sent to the group (stale ones dropped); empty
+    when none was recorded."""
+    try:
+        raw = _redis().hgetall(_counts_key(group))
+    except redis.RedisError:
+        return {}
+    return {k.decode(): int(v) for k, v in raw.items()}
+
+
 def is_watched(group: str) -> bool:
     try:
         return bool(_redis().exists(_watch_key(group)))
@@ -50,15 +70,17 @@ def is_watched(group: str) -> bool:
         return False
 
 
-def send(group: str, message: dict) -> None:
-    """Send one message to a group now (metrics, status changes)."""
+def send(group: str, message: dict) -> bool:
+    """Send one message to a group now (metrics, status changes); False when it could not."""
     layer = get_channel_layer()
     if layer is None:
-        return
+        return False
     try:
         async_to_sync(layer.group_send)(group, message)
     except Exception:  # noqa: BLE001 - live updates are best effort; the job goes on
         log.warning("could not send a live update to %s", group, exc_info=True)
+        return False
+    return True
 
 
 class FramePublisher:
@@ -71,6 +93,8 @@ class FramePublisher:
         self._stop = threading.Event()
         self._watched = False
         self._checked = 0.0
+        self.encoded = 0  # frames the worker encoded and handed over
+        self.sent = 0  # frames sent to the group (each once, for every viewer)
         self._thread.start()
 
     def watched(self) -> bool:
@@ -81,6 +105,7 @@ class FramePublisher:
         return self._watched
 
     def publish(self, frame: dict) -> None:
+        self.encoded += 1
         message = {
             "type": "job.frame",
             "camera": base64.b64encode(bytes(frame["camera"])).decode(),
@@ -105,13 +130,39 @@ class FramePublisher:
                 pass
 
     def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                message = self._queue.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            send(self.group, message)
+        # One event loop for the thread's life: async_to_sync for each frame would start a loop,
+        # a thread and a Redis connection (the channel layer's pools are per loop) every time,
+        # about 7 times the cost of a send on a busy machine - and frames dropped behind it.
+        loop = asyncio.new_event_loop()
+        try:
+            while not self._stop.is_set():
+                try:
+                    message = self._queue.get(timeout=0.2)
+                except queue.Empty:
+                    continue
+                self.sent += self._send(loop, message)
+        finally:
+            loop.close()  # channels_redis closes this loop's connections
+
+    def _send(self, loop: asyncio.AbstractEventLoop, message: dict) -> bool:
+        layer = get_channel_layer()
+        if layer is None:
+            return False
+        try:
+            loop.run_until_complete(layer.group_send(self.group, message))
+        except Exception:  # noqa: BLE001 - live video is best effort; the job goes on
+            log.warning("could not send a frame to %s", self.group, exc_info=True)
+            return False
+        return True
 
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2)
+        if not self.encoded:
+            return
+        try:
+            r, key = _redis(), _counts_key(self.group)
+            r.hset(key, mapping={"encoded": self.encoded, "sent": self.sent})
+            r.expire(key, FRAME_COUNTS_TTL_S)
+        except redis.RedisError:
+            log.warning("could not record the frame counts of %s", self.group)

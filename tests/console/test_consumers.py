@@ -147,3 +147,62 @@ def test_others_and_strangers_are_refused(training_job, charlie_client) -> None:
 
     async_to_sync(scenario)()
     assert not live.is_watched(live.job_group("training", training_job.pk))
+
+
+def test_twenty_viewers_of_one_job_cost_one_encode_per_frame(
+    training_job, alice_client, monkeypatch
+) -> None:
+    """Issue 14: the worker encodes a frame once (two JPEGs: camera and chase view) and sends
+    it to the job's group once; every viewer gets every frame, however many watch."""
+    import asyncio
+    import base64
+
+    from tests.console.conftest import ACTIONS
+    from training.rollout import envs
+
+    viewers, frames = 20, 3
+    encodes: list[str] = []
+    real_imencode = envs.cv2.imencode
+
+    def imencode(ext, image, params):
+        encodes.append(ext)
+        return real_imencode(ext, image, params)
+
+    monkeypatch.setattr(envs.cv2, "imencode", imencode)
+    env = envs.EnvSpec(track="racecraft_oval", action_space=ACTIONS).make()
+    grabber = envs.FrameGrabber(env, interval_s=0.0)
+    group = live.job_group("training", training_job.pk)
+    path = f"/ws/training/{training_job.pk}/"
+
+    async def scenario() -> tuple[list[dict], list[list[dict]], live.FramePublisher]:
+        sockets = [(await connect(alice_client, path))[0] for _ in range(viewers)]
+        for ws in sockets:
+            assert (await ws.receive_json_from(timeout=10))["type"] == "snapshot"
+        publisher = live.FramePublisher(group)  # the worker's frame sender
+        sent, got = [], [[] for _ in sockets]
+        obs, _ = env.reset(seed=1)
+        for _ in range(frames):
+            obs = env.step(1)[0]
+            frame = grabber.grab(obs)
+            sent.append(frame)
+            publisher.publish(frame)
+            # One at a time: the publisher keeps only the newest frame when it falls behind.
+            for ws, mine in zip(sockets, got, strict=True):
+                mine.append(await ws.receive_json_from(timeout=10))
+        quiet = await asyncio.gather(*(ws.receive_nothing(timeout=0.3) for ws in sockets))
+        assert all(quiet), "a viewer got a frame twice"
+        await sync_to_async(publisher.close)()
+        await asyncio.gather(*(ws.disconnect() for ws in sockets))
+        return sent, got, publisher
+
+    try:
+        sent, got, publisher = async_to_sync(scenario)()
+    finally:
+        env.close()
+    assert len(encodes) == 2 * frames  # camera + chase per frame, not per viewer
+    assert publisher.encoded == publisher.sent == frames
+    assert live.frame_counts(group) == {"encoded": frames, "sent": frames}
+    expected = [base64.b64encode(f["camera"].tobytes()).decode() for f in sent]
+    for mine in got:
+        assert [m["type"] for m in mine] == ["frame"] * frames
+        assert [m["camera"] for m in mine] == expected
