@@ -10,7 +10,8 @@ step say what one step costs in Redis bandwidth.
 
     .venv/bin/python bench/bench_scale.py [--seconds 60] [--track racecraft_oval]
 
-Last line: ``one_worker_steps_per_s=… two_workers_steps_per_s=… bytes_per_step=… ratio=…``
+Last line: ``one_worker_steps_per_s=… two_workers_steps_per_s=… bytes_per_step=… policy_bytes=…
+ratio=…``
 (the ratio is 2 workers against 1; the goal is ≥ 1.6 where there are cores for both).
 """
 
@@ -101,8 +102,10 @@ def measure(redis_url: str, spec: EnvSpec, workers: int, seconds: float) -> dict
                 proc.kill()
         session.cleanup()
         session.close()
+    policy_bytes = sum(int(v.nbytes) for v in weights.values())
     return {"workers": workers, "steps": steps, "episodes": episodes, "seconds": elapsed,
-            "steps_per_s": steps / elapsed, "bytes_per_step": size / max(1, steps)}  # fmt: skip
+            "steps_per_s": steps / elapsed, "bytes_per_step": size / max(1, steps),
+            "policy_bytes": policy_bytes}  # fmt: skip
 
 
 def main() -> None:
@@ -125,12 +128,17 @@ def main() -> None:
     for r in rows:
         print(f"{r['workers']:>7} {r['steps']:>7} {r['episodes']:>8} {r['seconds']:>7.1f} "
               f"{r['steps_per_s']:>8.1f} {r['bytes_per_step']:>10.0f}")  # fmt: skip
+    print(
+        f"policy: {rows[0]['policy_bytes'] / 1e6:.2f} MB of weights, sent to every worker "
+        "once per policy version"
+    )
     print(f"load average: {' '.join(f'{x:.2f}' for x in os.getloadavg())}, "
           f"{os.cpu_count()} CPUs")  # fmt: skip
     one, two = rows
     print(f"one_worker_steps_per_s={one['steps_per_s']:.1f} "
           f"two_workers_steps_per_s={two['steps_per_s']:.1f} "
           f"bytes_per_step={two['bytes_per_step']:.0f} "
+          f"policy_bytes={one['policy_bytes']} "
           f"ratio={two['steps_per_s'] / one['steps_per_s']:.2f}")  # fmt: skip
 
 
