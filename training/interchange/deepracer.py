@@ -38,11 +38,8 @@ from training.interchange.archive import (
     read_json,
     reward_source,
 )
-from training.interchange.graphimport import (
-    GraphImportError,
-    policy_from_checkpoint,
-    policy_from_graph,
-)
+from training.interchange.checkpointimport import policy_from_checkpoint
+from training.interchange.graphimport import GraphImportError, policy_from_graph
 from training.interchange.tfcheckpoint import CheckpointFormatError, read_checkpoint
 from training.rl.checkpoints import checkpoint_bytes
 from training.rl.hyperparams import HyperparameterError, Hyperparameters, parse_hyperparameters

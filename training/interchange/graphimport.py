@@ -10,14 +10,13 @@ gradient rescalers, Pack/StridedSlice) is skipped. The convolution stack picks t
 (``AWS_DEEPRACER_*``), a 64-unit hidden layer Racecraft's. Weights come only from Const nodes;
 nothing is executed but numpy arithmetic. Finally the torch policy and the graph itself
 (:func:`training.interchange.tfgraph.run_graph`) are run on probe images and must agree, so a
-graph that computes something else is refused rather than imported wrong.
+graph that computes something else is refused rather than imported wrong. With a LIDAR in the
+metadata's sensors the graph must have Racecraft's camera + LIDAR layout (:func:`_read_lidar`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import re
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,7 +36,7 @@ from training.interchange.export import BoxPolicy, DiscretePolicy
 from training.interchange.tfgraph import GraphError, const_value, parse_graph, run_graph
 from training.rl.checkpoints import new_model
 from training.rl.metadata import ModelMetadata
-from training.rl.policies import DIRECT_HEADS, SPECS
+from training.rl.policies import DIRECT_HEADS, LIDAR_EMBEDDER_UNITS, SPECS
 
 PROBE_TOLERANCE = 1e-4
 PLUMBING = {
@@ -58,7 +57,9 @@ class GraphImportError(ValueError):
 
 
 @dataclass
-class _Layer:
+class Layer:
+    """One convolution or dense layer read from a graph or a checkpoint."""
+
     kind: str  # "conv" | "dense"
     kernel: np.ndarray  # conv HWIO, dense [in, out]
     stride: int = 1
@@ -67,12 +68,17 @@ class _Layer:
 
 
 @dataclass
-class _Graph:
+class NetworkLayers:
+    """A network read from a graph: the camera path's layers to the head, and any LIDAR
+    branch (:func:`build_policy` turns it into an SB3 model)."""
+
     scale: float = 1.0  # the graph's input is image * scale + offset
     offset: float = 0.0
     pool: int = 1
-    layers: list[_Layer] = field(default_factory=list)
+    layers: list[Layer] = field(default_factory=list)
     head: str = "linear"  # softmax | tanh | clip (already in the action's units) | linear
+    concat: tuple[str, int] | None = None  # the ConcatV2 joining the LIDAR, layers before it
+    lidar: list[Layer] = field(default_factory=list)  # the LIDAR embedder's dense layers
 
 
 def _path_nodes(graph, source: str, target: str) -> list:
@@ -109,15 +115,15 @@ def _weight(nodes: dict, name: str) -> np.ndarray:
         raise GraphImportError(f"a weight is not a constant ({exc})") from None
 
 
-def _read_layers(graph, source: str, target: str) -> _Graph:
+def _read_layers(graph, source: str, target: str) -> NetworkLayers:
     nodes = {n.name: n for n in graph.node}
     path = _path_nodes(graph, source, target)
     on_path = {n.name for n in path}
-    found = _Graph()
+    found = NetworkLayers()
     for node in path:
         op, layers = node.op, found.layers
-        if node.name == source:
-            continue
+        if node.name == source or (node.name == target and op == "ConcatV2"):
+            continue  # a LIDAR branch is read up to the concatenation that joins it
         others = [i for i in node.input if i.split(":")[0] not in on_path]
         if op in ("RealDiv", "Mul", "Sub") and not layers and found.pool == 1 and others:
             value = float(_weight(nodes, others[0]).reshape(-1)[0])
@@ -133,17 +139,21 @@ def _read_layers(graph, source: str, target: str) -> _Graph:
             if node.attr["padding"].s != b"VALID":
                 raise GraphImportError(f"{node.name}: only VALID convolutions are supported")
             stride = int(node.attr["strides"].list.i[1])
-            layers.append(_Layer("conv", _weight(nodes, node.input[1]), stride))
+            layers.append(Layer("conv", _weight(nodes, node.input[1]), stride))
         elif op == "MatMul":
             if node.attr["transpose_a"].b or node.attr["transpose_b"].b:
                 raise GraphImportError(f"{node.name}: transposed MatMul is not supported")
-            layers.append(_Layer("dense", _weight(nodes, node.input[1])))
+            layers.append(Layer("dense", _weight(nodes, node.input[1])))
         elif op == "BiasAdd" and layers:
             layers[-1].bias = _weight(nodes, node.input[1])
         elif op in ("Relu", "Tanh") and layers and layers[-1].activation is None:
             layers[-1].activation = op
         elif op == "Softmax":
             found.head = "softmax"
+        elif op == "ConcatV2":
+            if found.concat is not None:
+                raise GraphImportError(f"{node.name}: only one concatenation is supported")
+            found.concat = (node.name, len(layers))
         elif op in ("Maximum", "Minimum"):
             found.head = "clip"
         elif op not in PLUMBING | {"Reshape"}:
@@ -153,7 +163,7 @@ def _read_layers(graph, source: str, target: str) -> _Graph:
     return found
 
 
-def _network(found: _Graph, channels: int) -> str:
+def _network(found: NetworkLayers, channels: int) -> str:
     """The Racecraft network whose layers have the graph's shapes."""
     convs = [
         (int(c.kernel.shape[3]), int(c.kernel.shape[0]), c.stride)
@@ -206,7 +216,7 @@ def _extractors(model: BaseAlgorithm) -> list[nn.Module]:
     return [model.policy.features_extractor]
 
 
-def _load(model: BaseAlgorithm, found: _Graph, metadata: ModelMetadata) -> None:
+def _load(model: BaseAlgorithm, found: NetworkLayers, metadata: ModelMetadata) -> None:
     """Copy the graph's weights into ``model`` (torch sees images / 255 in C,H,W order)."""
     convs = [layer for layer in found.layers if layer.kind == "conv"]
     denses = [layer for layer in found.layers if layer.kind == "dense"]
@@ -218,7 +228,8 @@ def _load(model: BaseAlgorithm, found: _Graph, metadata: ModelMetadata) -> None:
     conv_bias[0] = conv_bias[0] + found.offset * first.sum(axis=(0, 1, 2))
     kernels = [c.kernel.transpose(3, 2, 0, 1) for c in convs]
     kernels[0] = kernels[0] * (255.0 * found.scale)
-    for extractor in _extractors(model):
+    for features in _extractors(model):
+        extractor = features.camera if found.concat else features
         torch_convs = [m for m in extractor.cnn if isinstance(m, nn.Conv2d)]
         for i, (conv, kernel, bias) in enumerate(zip(torch_convs, kernels, conv_bias, strict=True)):
             _copy(conv, kernel, bias, f"convolution {i + 1}")
@@ -230,6 +241,9 @@ def _load(model: BaseAlgorithm, found: _Graph, metadata: ModelMetadata) -> None:
             denses[0].bias,
             "dense layer 1",
         )
+        lidars = [m for m in features.lidar if isinstance(m, nn.Linear)] if found.concat else []
+        for i, (layer, linear) in enumerate(zip(found.lidar, lidars, strict=True)):
+            _copy(linear, layer.kernel.T, layer.bias, f"LIDAR dense layer {i + 1}")
     head = denses[-1]
     kernel, bias = (
         head.kernel.T,
@@ -250,7 +264,7 @@ def _load(model: BaseAlgorithm, found: _Graph, metadata: ModelMetadata) -> None:
     _copy(out, kernel.astype(np.float32), bias.astype(np.float32), "the policy head")
 
 
-def _conv_output_size(found: _Graph, convs: list[_Layer]) -> tuple[int, int]:
+def _conv_output_size(found: NetworkLayers, convs: list[Layer]) -> tuple[int, int]:
     h, w = CAMERA_HEIGHT // found.pool, CAMERA_WIDTH // found.pool
     for conv in convs:
         k = conv.kernel.shape[0]
@@ -258,7 +272,7 @@ def _conv_output_size(found: _Graph, convs: list[_Layer]) -> tuple[int, int]:
     return h, w
 
 
-def _probe(model: BaseAlgorithm, graph, metadata: ModelMetadata, found: _Graph) -> None:
+def _probe(model: BaseAlgorithm, graph, metadata: ModelMetadata, found: NetworkLayers) -> None:
     """Run the graph (numpy) and the torch policy on probe images; refuse if they differ."""
     rng = np.random.default_rng(0)
     images = rng.uniform(0, 255, (3, CAMERA_HEIGHT, CAMERA_WIDTH, metadata.channels)).astype(
@@ -266,13 +280,19 @@ def _probe(model: BaseAlgorithm, graph, metadata: ModelMetadata, found: _Graph) 
     )
     images[0] = 0.0
     algorithm = metadata.training_algorithm
-    expected = run_graph(
-        graph, {input_name(algorithm, metadata.camera): images}, output_name(algorithm)
-    )
+    feeds = {input_name(algorithm, metadata.camera): images}
+    readings = None
+    if metadata.lidar is not None:  # readings in the simulator's range (deepracer-spec §4)
+        size = int(model.policy.observation_space.spaces[metadata.lidar].shape[0])
+        feeds[input_name(algorithm, metadata.lidar)] = rng.uniform(0.15, 1.0, (3, size)).astype(
+            np.float32
+        )
+        readings = torch.from_numpy(feeds[input_name(algorithm, metadata.lidar)])
+    expected = run_graph(graph, feeds, output_name(algorithm))
     discrete = metadata.action_space_type == "discrete"
     wrapper = DiscretePolicy(model.policy) if discrete else BoxPolicy(model)
     with torch.no_grad():
-        actual = wrapper(torch.from_numpy(images.transpose(0, 3, 1, 2).copy())).numpy()
+        actual = wrapper(torch.from_numpy(images.transpose(0, 3, 1, 2).copy()), readings).numpy()
     if not discrete:  # the graph's actions are in -1..1 of the ranges
         low, high = model.action_space.low, model.action_space.high
         actual = 2.0 * (actual - low) / (high - low) - 1.0
@@ -290,15 +310,61 @@ def _probe(model: BaseAlgorithm, graph, metadata: ModelMetadata, found: _Graph) 
         )
 
 
-def _camera_only(metadata: ModelMetadata) -> None:
-    """DeepRacer graphs and checkpoints are read for camera networks only: a LIDAR model's
-    embedder and concatenation are not mapped (yet), so it is refused in plain words."""
-    if metadata.lidar is not None:
+def _read_lidar(graph, found: NetworkLayers, metadata: ModelMetadata) -> None:
+    """Read the LIDAR branch into ``found.lidar``: from the LIDAR input to the ConcatV2 that
+    joins it after the camera's dense layer, as Racecraft's car export writes it
+    (:mod:`training.interchange.carmodel`): dense 256 → 256 with ReLU
+    (:data:`training.rl.policies.LIDAR_EMBEDDER_UNITS`), the camera's features first. Any
+    other layout (DeepRacer's own joins the camera's flattened convolutions and the LIDAR
+    before the 512-unit dense layer) is refused, naming what does not fit."""
+    algorithm, lidar = metadata.training_algorithm, metadata.lidar
+    if lidar is None:
+        if found.concat is not None:
+            raise GraphImportError(
+                f"{found.concat[0]}: the graph joins a second input but the metadata's sensor "
+                "list has no LIDAR"
+            )
+        return
+    if found.concat is None:
         raise GraphImportError(
-            f"importing a DeepRacer model with a {metadata.lidar} is not supported: only "
-            "camera and stereo-camera models can be imported (a Racecraft virtual model with "
-            "a LIDAR imports as usual)"
+            f"unsupported network: the metadata lists a {lidar} but no LIDAR branch joins the "
+            "camera's (no ConcatV2 between the camera input and the output)"
         )
+    concat_name, before = found.concat
+    nodes = {n.name: n for n in graph.node}
+    branch = _read_layers(graph, input_name(algorithm, lidar), concat_name)
+    joined = [i.split(":")[0] for i in nodes[concat_name].input]
+    axis = _weight(nodes, joined[-1]).reshape(-1) if len(joined) == 3 else None
+    lidar_side = {n.name for n in _path_nodes(graph, input_name(algorithm, lidar), concat_name)}
+    if axis is None or int(axis[0]) not in (1, -1) or joined[1] not in lidar_side:
+        raise GraphImportError(
+            f"unsupported network: {concat_name} must join the camera's features and then the "
+            "LIDAR's, along the features axis"
+        )
+    camera_denses = [layer.kind for layer in found.layers[:before]].count("dense")
+    if camera_denses != 1:
+        raise GraphImportError(
+            f"unsupported network: the LIDAR joins the camera after {camera_denses} camera dense "
+            "layers; Racecraft's camera + LIDAR network joins them after exactly one (the "
+            "camera's own); DeepRacer's own layout, which joins them before its dense layer, "
+            "cannot be imported"
+        )
+    units = [
+        f"{layer.kind} {layer.kernel.shape[-1]} {layer.activation or 'linear'}"
+        for layer in branch.layers
+    ]
+    embedder = [f"dense {n} Relu" for n in LIDAR_EMBEDDER_UNITS]
+    if units != embedder or branch.pool != 1 or branch.head != "linear":
+        raise GraphImportError(
+            f"unsupported network: the LIDAR branch has layers {', '.join(units) or 'none'}; "
+            f"Racecraft's LIDAR embedder is {', '.join(embedder)}"
+        )
+    # the branch's input is readings * scale + offset: fold that into the first dense layer
+    first = branch.layers[0]
+    bias = first.bias if first.bias is not None else np.zeros(first.kernel.shape[1], np.float32)
+    first.bias = (bias + branch.offset * first.kernel.sum(axis=0)).astype(np.float32)
+    first.kernel = (first.kernel * branch.scale).astype(np.float32)
+    found.lidar = branch.layers
 
 
 def policy_from_graph(data: bytes, metadata: ModelMetadata) -> tuple[BaseAlgorithm, ModelMetadata]:
@@ -310,13 +376,13 @@ def policy_from_graph(data: bytes, metadata: ModelMetadata) -> tuple[BaseAlgorit
     ``neural_network`` set to the matching Racecraft network. Raises :class:`GraphImportError`
     naming the node, name or shape at fault.
     """
-    _camera_only(metadata)
     try:
         graph = parse_graph(data)
     except GraphError as exc:
         raise GraphImportError(str(exc)) from None
     algorithm = metadata.training_algorithm
     found = _read_layers(graph, input_name(algorithm, metadata.camera), output_name(algorithm))
+    _read_lidar(graph, found, metadata)
     if (found.head == "softmax") != (metadata.action_space_type == "discrete"):
         raise GraphImportError(
             f"the graph's head ({found.head}) does not fit a {metadata.action_space_type} "
@@ -327,7 +393,7 @@ def policy_from_graph(data: bytes, metadata: ModelMetadata) -> tuple[BaseAlgorit
         raise GraphImportError(
             f"unsupported network: a {algorithm} graph whose head ends in {found.head}"
         )
-    model, metadata = _build(found, metadata)
+    model, metadata = build_policy(found, metadata)
     try:
         _probe(model, graph, metadata, found)
     except GraphError as exc:
@@ -335,7 +401,11 @@ def policy_from_graph(data: bytes, metadata: ModelMetadata) -> tuple[BaseAlgorit
     return model, metadata
 
 
-def _build(found: _Graph, metadata: ModelMetadata) -> tuple[BaseAlgorithm, ModelMetadata]:
+def build_policy(
+    found: NetworkLayers, metadata: ModelMetadata
+) -> tuple[BaseAlgorithm, ModelMetadata]:
+    """A new SB3 model of the Racecraft network ``found`` matches, holding its weights, and the
+    metadata naming that network. Raises :class:`GraphImportError`."""
     network = _network(found, metadata.channels)
     extra = {k: v for k, v in metadata.extra.items() if k != RACECRAFT_NETWORK_KEY}
     metadata = dataclasses.replace(metadata, neural_network=network, extra=extra)
@@ -343,59 +413,3 @@ def _build(found: _Graph, metadata: ModelMetadata) -> tuple[BaseAlgorithm, Model
     with torch.no_grad():
         _load(model, found, metadata)
     return model, metadata
-
-
-def policy_from_checkpoint(
-    tensors: Mapping[str, np.ndarray], metadata: ModelMetadata
-) -> tuple[BaseAlgorithm, ModelMetadata]:
-    """The torch policy of a DeepRacer TensorFlow checkpoint (tensors by variable name, see
-    :mod:`training.interchange.tfcheckpoint`), as :func:`policy_from_graph` gives it.
-
-    A checkpoint holds variables, not the graph, so DeepRacer's layout is assumed: the policy
-    network's ``<SENSOR>/Conv2d_<n>/kernel|bias`` (strides from the matching network of
-    :data:`training.rl.policies.SPECS`), ``middleware_fc_embedder/Dense_0`` and the one dense
-    layer of its head, on images divided by 255. Raises :class:`GraphImportError`.
-    """
-    _camera_only(metadata)
-    algorithm = metadata.training_algorithm
-    scope = output_name(algorithm).rsplit("/", 2)[0] + "/"
-    head_scope = output_name(algorithm).rsplit("/", 1)[0] + "/"
-    convs = {}
-    for name in tensors:
-        match = re.fullmatch(rf"{re.escape(scope + metadata.camera)}/Conv2d_(\d+)/kernel", name)
-        if match:
-            convs[int(match.group(1))] = name[: -len("kernel")]
-    if not convs:
-        raise GraphImportError(f"no convolution under {scope}{metadata.camera}/ in the checkpoint")
-    kernels = [tensors[convs[i] + "kernel"] for i in sorted(convs)]
-    shapes = [(int(k.shape[3]), int(k.shape[0])) for k in kernels]
-    strides = next(
-        (
-            [s for _, _, s in spec]
-            for _, spec, _ in SPECS.values()
-            if [(f, k) for f, k, _ in spec] == shapes
-        ),
-        None,
-    )
-    if strides is None:
-        raise GraphImportError(f"unsupported network: convolutions (filters, kernel) {shapes}")
-    found = _Graph(
-        scale=1 / 255.0, head="softmax" if metadata.action_space_type == "discrete" else "linear"
-    )
-    if algorithm == "sac":
-        found.head = "tanh"
-    for i, kernel, stride in zip(sorted(convs), kernels, strides, strict=True):
-        found.layers.append(_Layer("conv", kernel, stride, tensors.get(convs[i] + "bias"), "Relu"))
-    heads = [n for n in tensors if n.startswith(head_scope) and n.endswith("/kernel")]
-    dense = scope + "middleware_fc_embedder/Dense_0/"
-    if dense + "kernel" not in tensors or len(heads) != 1:
-        raise GraphImportError(
-            f"the checkpoint needs {dense}kernel and one kernel under {head_scope} "
-            f"(found {len(heads)})"
-        )
-    found.layers.append(
-        _Layer("dense", tensors[dense + "kernel"], 1, tensors.get(dense + "bias"), "Relu")
-    )
-    head = heads[0][: -len("kernel")]
-    found.layers.append(_Layer("dense", tensors[head + "kernel"], 1, tensors.get(head + "bias")))
-    return _build(found, metadata)

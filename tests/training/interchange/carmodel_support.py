@@ -46,12 +46,17 @@ def stereo(frames: np.ndarray) -> np.ndarray:
     return np.concatenate([frames, right], axis=3)
 
 
-def torch_outputs(model: BaseAlgorithm, frames_nhwc: np.ndarray) -> np.ndarray:
-    """What the car graph must give: softmax probabilities, or the action in -1..1."""
+def torch_outputs(
+    model: BaseAlgorithm, frames_nhwc: np.ndarray, lidar: np.ndarray | None = None
+) -> np.ndarray:
+    """What the car graph must give: softmax probabilities, or the action in -1..1 (``lidar``:
+    the LIDAR readings of a camera + LIDAR model, ``(n, size)``)."""
     discrete = hasattr(model.action_space, "n")
     wrapper = DiscretePolicy(model.policy) if discrete else BoxPolicy(model)
+    readings = None if lidar is None else torch.as_tensor(lidar, dtype=torch.float32)
     with torch.no_grad():
-        out = wrapper(torch.as_tensor(frames_nhwc.transpose(0, 3, 1, 2), dtype=torch.float32))
+        frames = torch.as_tensor(frames_nhwc.transpose(0, 3, 1, 2), dtype=torch.float32)
+        out = wrapper(frames, readings)
     out = out.numpy()
     if discrete:
         return out

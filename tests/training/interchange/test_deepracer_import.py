@@ -13,7 +13,6 @@ import torch
 
 from tests.training.interchange.carmodel_support import (
     metadata_for,
-    randomised_model,
     run_tensorflow,
     stereo,
     torch_outputs,
@@ -25,7 +24,6 @@ from tests.training.interchange.deepracer_support import (
 )
 from training.interchange.archive import ArchiveError, ImportLimits
 from training.interchange.carmodel import (
-    build_car_archive,
     export_car_graph,
     input_name,
     output_name,
@@ -36,7 +34,6 @@ from training.interchange.deepracer import (
     import_deepracer_upload,
 )
 from training.interchange.export import load_checkpoint
-from training.rl.metadata import build_metadata
 from training.rl.policies import AWS_SHALLOW, SHALLOW
 
 REWARD = b"def reward_function(params):\n    return 1.0\n"
@@ -200,15 +197,6 @@ def test_names_and_shapes_that_do_not_fit(car_files) -> None:
     sac = metadata_for(SHALLOW, "FRONT_FACING_CAMERA", "sac")
     with pytest.raises(ArchiveError, match="no input node main_level/agent/policy"):
         import_car_archive(tar_gz({**car_files, "model_metadata.json": sac.dumps()}))
-
-
-def test_lidar_car_models_are_refused_in_plain_words() -> None:
-    """A car archive with a LIDAR (here Racecraft's own export) is refused, not misread."""
-    meta = build_metadata(action_space=[{"steering_angle": a, "speed": 1.0} for a in (-30, 30)],
-                          sensor=["FRONT_FACING_CAMERA", "SECTOR_LIDAR"])  # fmt: skip
-    archive = build_car_archive(meta, randomised_model(meta, seed=1))
-    with pytest.raises(ArchiveError, match="with a SECTOR_LIDAR is not supported"):
-        import_car_archive(archive)
 
 
 def test_unsafe_archives_are_refused(car_files) -> None:
