@@ -25,8 +25,10 @@ from training.interchange.carmodel import (
     input_name,
     output_name,
 )
+from training.interchange.checkpointimport import policy_from_checkpoint
 from training.interchange.deepracer import import_car_archive
 from training.interchange.export import load_checkpoint
+from training.interchange.graphimport import GraphImportError
 from training.interchange.tarball import deterministic_tar_gz as tar_gz
 from training.interchange.tfgraph import GraphWriter, parse_graph, run_graph
 from training.rl.metadata import build_metadata
@@ -75,6 +77,38 @@ def test_exported_lidar_car_model_imports_and_drives_as_the_graph(
         {camera: frames[0].astype(np.uint8), lidar: readings[0]}, deterministic=True
     )
     assert again.action_space.contains(np.asarray(action, dtype=again.action_space.dtype))
+
+
+def rescaled_lidar(graph_bytes: bytes, lidar_input: str) -> bytes:
+    """The graph with ``readings * 0.5 - 0.1`` between the LIDAR input and its first layer."""
+    graph, w = parse_graph(graph_bytes), GraphWriter()
+    x = w.binary("Mul", "lidar_scale", lidar_input, w.const("lidar_scale/y", 0.5))
+    w.binary("Sub", "lidar_offset", x, w.const("lidar_offset/y", 0.1))
+    nodes = []
+    for node in graph.node:
+        if lidar_input in node.input:
+            node.input[list(node.input).index(lidar_input)] = "lidar_offset"
+        nodes.append(node)
+        if node.name == lidar_input:  # inputs stay listed before their consumers
+            nodes.extend(w.graph.node)
+    del graph.node[:]
+    graph.node.extend(nodes)
+    return graph.SerializeToString()
+
+
+def test_a_rescaled_lidar_input_is_folded_into_the_first_layer() -> None:
+    meta = build_metadata(action_space=DISCRETE, sensor=["FRONT_FACING_CAMERA", "SECTOR_LIDAR"],
+                          neural_network=LEAN)  # fmt: skip
+    lidar = input_name("clipped_ppo", "SECTOR_LIDAR")
+    graph = rescaled_lidar(export_car_graph(randomised_model(meta, seed=7), meta), lidar)
+    files = {"model_metadata.json": car_metadata(meta), "agent/model.pb": graph}
+    imported = import_car_archive(tar_gz(files))
+    frames, readings = inputs("FRONT_FACING_CAMERA", 8)
+    feeds = {input_name("clipped_ppo", "FRONT_FACING_CAMERA"): frames, lidar: readings}
+    expected = run_graph(parse_graph(graph), feeds, output_name("clipped_ppo"))
+    actual = torch_outputs(load_checkpoint(imported.checkpoint_bytes, imported.metadata),
+                           frames, readings)  # fmt: skip
+    np.testing.assert_allclose(actual, expected, atol=1e-4, rtol=0)
 
 
 def deepracer_layout() -> bytes:
@@ -128,3 +162,6 @@ def test_unrecognised_lidar_branches_are_refused_in_plain_words() -> None:
     with pytest.raises(ArchiveError, match="joins a second input but the metadata's sensor"):
         import_car_archive(tar_gz({**lidar_graph, "model_metadata.json": json.dumps(without)
                                    .encode()}))  # fmt: skip
+    # a TensorFlow checkpoint holds no graph to check a LIDAR branch against: refused
+    with pytest.raises(GraphImportError, match="checkpoint with a LIDAR is not supported"):
+        policy_from_checkpoint({}, meta)
