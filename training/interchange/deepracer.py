@@ -16,10 +16,12 @@ model folder, into a Racecraft checkpoint (an SB3 zip, as :mod:`training.rl.chec
 Archives are read in memory by :func:`training.interchange.archive.read_archive` (links,
 absolute or ``..`` names, devices, oversized or bomb archives are refused). The weights come
 only from the graph's Const nodes or the checkpoint's tensors
-(:mod:`training.interchange.graphimport`): nothing is unpickled or executed. Only the policy is
-taken (a frozen graph holds nothing else, and DeepRacer's PPO value network has its own
-convolutions, which Racecraft's shared network cannot hold), so the value function (PPO) or the
-critics (SAC) start fresh: :attr:`ImportedDeepRacerModel.value_head_fresh` says so.
+(:mod:`training.interchange.graphimport`, :mod:`training.interchange.checkpointimport`):
+nothing is unpickled or executed. A camera + LIDAR model is read from its graph when the LIDAR
+branch is laid out as Racecraft's car export writes it; other LIDAR layouts are refused. Only
+the policy is taken (a frozen graph holds nothing else, and DeepRacer's PPO value network has
+its own convolutions, which Racecraft's shared network cannot hold), so the value function (PPO)
+or the critics (SAC) start fresh: :attr:`ImportedDeepRacerModel.value_head_fresh` says so.
 Every failure is an :class:`~training.interchange.archive.ArchiveError` naming the file.
 """
 
