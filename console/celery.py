@@ -27,6 +27,13 @@ import os
 from celery import Celery
 
 os.environ.setdefault("DJANGO_SETTINGS_MODULE", "console.settings")
+# Every process of the console imports this module (console/__init__.py) before torch loads
+# OpenMP: its idle threads must sleep, not spin. A trainer's threads spin while simulation
+# workers, evaluations, the video and other jobs want the same cores, and steal them: with
+# streamed simulation on 2 cores a policy update took 52-54 s spinning and 7-13 s passive
+# (bench/bench_video.py --modes streams), while a lockstep training run took the same time
+# either way on a quiet machine.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 QUEUE_TRAINING = "training"
 QUEUE_SIMULATION = "simulation"

@@ -32,12 +32,10 @@ pytest_plugins = ["tests.support"]
 REDIS_PREFIX = f"racecraft-test-{uuid.uuid4().hex[:10]}:"
 
 # Tests run in parallel (pytest-xdist), each beside its own workers and browsers, on machines
-# with as few as 2 cores. OpenMP threads that spin while they wait then steal the cores the
-# others need: two car-model round trips took 199 s instead of 20 s at a load average of 5.
-# This process drives one car at a time (one thread is as fast); its children (Celery workers,
-# daphne, `manage.py up`) inherit a wait that sleeps instead of spinning.
+# with as few as 2 cores: two car-model round trips took 199 s instead of 20 s at a load
+# average of 5 with torch's default threads. This process drives one car at a time, which one
+# thread does as fast; its children wait passively (console/celery.py).
 torch.set_num_threads(1)
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 def _delete_prefixed(url: str, prefix: str) -> None:
