@@ -30,11 +30,9 @@ say so when you quote the figures.
 from __future__ import annotations
 
 import argparse
-import http.client
 import json
 import os
 import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -42,6 +40,8 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+
+from bench_load import free_port, wait_http  # the console's start, as the load bench does
 
 ROOT = Path(__file__).resolve().parents[1]
 REWARD = """
@@ -76,29 +76,6 @@ VIEWERS_JS = """([path, n]) => {
 }"""
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_http(port: int, proc: subprocess.Popen, timeout: float) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise SystemExit(f"manage.py up exited with {proc.returncode}")
-        try:
-            conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
-            conn.request("GET", "/")
-            if conn.getresponse().status < 500:
-                return
-        except OSError:
-            pass
-        time.sleep(0.5)
-    raise SystemExit("the console did not answer")
-
-
-# ---------------------------------------------------------------------------- one mode
 def run_mode(mode: str, args: argparse.Namespace) -> dict:
     """One mode in this process: the console up, a job trained and watched; a result dict."""
     var = Path(tempfile.mkdtemp(prefix=f"rc-bench-video-{mode}-"))

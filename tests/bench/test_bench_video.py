@@ -17,7 +17,11 @@ def bench():
     spec = importlib.util.spec_from_file_location("bench_video_under_test", PATH)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
+    sys.path.insert(0, str(PATH.parent))  # its sibling bench_load, as when run as a script
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(PATH.parent))
     yield module
     del sys.modules[spec.name]
 
