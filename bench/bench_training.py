@@ -10,6 +10,11 @@ update one evaluation drives 3 consecutive laps from the start line (the clock i
 - **fast** (the racing preset) stops at three clean 3-lap evaluations in a row with every lap
   at most ``--lap-limit`` seconds (10.0).
 
+``--modes`` says how the simulation runs (``RACECRAFT_SIMULATION``): ``lockstep``, the
+console's default (the trainer steps 8 cars in 2 sandboxed workers, then updates, then
+evaluates), and ``streams`` (2 simulation workers own their episodes and stream them through
+an embedded Redis, or ``--redis-url``; they drive evaluation laps while the trainer updates).
+
 Each setup runs ``--seeds`` seeds (0, 1, 2): the figures are medians, with the environment
 steps to the goal (the same on any machine for a seed, give or take float differences between
 CPUs) beside the wall time (which depends on the machine and its load), and where the time went
@@ -17,7 +22,8 @@ CPUs) beside the wall time (which depends on the machine and its load), and wher
 after) is printed with them.
 
     .venv/bin/python bench/bench_training.py [--seeds 3] [--minutes 8] [--lap-limit 10.0]
-        [--setups defaults fast] [--track reinvent_base] [--tracks-dir DIR]
+        [--setups defaults fast] [--modes lockstep streams] [--track reinvent_base]
+        [--tracks-dir DIR] [--redis-url URL]
 
 A smoke test: ``--seeds 1 --minutes 1``. reinvent_base (DeepRacer's re:Invent 2018 track) is
 read from ``shared/tracks`` next to the repository (never committed); any built-in track works.
@@ -27,6 +33,8 @@ ratio=…``: median seconds to the goal, the median lap of the qualifying evalua
 evaluated lap of any run, and ``ratio`` = fast_median_s / defaults_median_s (what a fast lap
 costs over a clean slow one, both measured in this run). ``nan`` where a run missed its goal
 within ``--minutes``. Goals (issue 14, quiet 2-core machine): fast ≤ 120 s, defaults ≤ 60 s.
+These keys are the first mode's; each further mode adds its own, prefixed with its name
+(``streams_defaults_median_s=…``), and ``{mode}_ratio=`` = its fast median / the first mode's.
 """
 
 from __future__ import annotations
@@ -43,10 +51,12 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 
+from console.launcher import EmbeddedRedis, Supervisor  # noqa: E402
 from training.rewards.examples import example_source  # noqa: E402
 from training.rl.presets import DEEPRACER_DEFAULTS, RACING, Preset  # noqa: E402
-from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train  # noqa: E402
-from training.rollout.backends import LocalRollouts  # noqa: E402
+from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks  # noqa: E402
+from training.rl.streamed import train  # noqa: E402
+from training.rollout.backends import LocalRollouts, StreamRollouts  # noqa: E402
 from training.rollout.envs import EnvSpec  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,6 +66,7 @@ SHARED = next(
 )
 EVALUATIONS_IN_A_ROW = 3
 EVAL_LAPS = 3
+MODES = ("lockstep", "streams")
 
 
 @dataclass(frozen=True)
@@ -73,6 +84,7 @@ class Run:
 
     setup: str
     seed: int
+    mode: str = "lockstep"
     seconds: float | None = None
     steps: int | None = None
     iterations: int = 0
@@ -185,6 +197,21 @@ def key_values(defaults: SetupSummary, fast: SetupSummary) -> str:
     )
 
 
+def mode_key_values(mode: str, defaults: SetupSummary, fast: SetupSummary,
+                    baseline_fast: SetupSummary) -> str:  # fmt: skip
+    """A further mode's keys, prefixed with its name; ``{mode}_ratio`` = its fast median over
+    the first mode's (below 1: this mode reaches a fast lap sooner)."""
+    ratio = None
+    if baseline_fast.median_s and fast.median_s is not None:
+        ratio = fast.median_s / baseline_fast.median_s
+    return (
+        f"{mode}_defaults_median_s={fmt(defaults.median_s)} "
+        f"{mode}_defaults_lap_s={fmt(defaults.lap_s, 2)} "
+        f"{mode}_fast_median_s={fmt(fast.median_s)} {mode}_fast_lap_s={fmt(fast.lap_s, 2)} "
+        f"{mode}_ratio={fmt(ratio, 2)}"
+    )
+
+
 def machine() -> str:
     """CPU model, cores and the load average (1, 5, 15 minutes), for the figures' context."""
     model = platform.processor() or platform.machine()
@@ -211,8 +238,16 @@ def track_spec(track: str, tracks_dir: Path, scratch: Path, preset: Preset) -> E
     return EnvSpec(track=track, track_dirs=dirs, action_space=preset.actions())
 
 
-def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path) -> Run:
-    run = Run(setup.name, seed)
+def rollouts(mode: str, redis_url: str) -> LocalRollouts | StreamRollouts:
+    """What a console job gets in ``mode``: 2 sandboxed workers on this machine."""
+    if mode == "streams":
+        return StreamRollouts(redis_url=redis_url, workers=2, prefix="bench:")
+    return LocalRollouts(num_workers=2)
+
+
+def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
+            mode: str = "lockstep", redis_url: str = "") -> Run:  # fmt: skip
+    run = Run(setup.name, seed, mode)
     preset = setup.preset
     config = TrainingConfig(
         spec=track_spec(args.track, args.tracks_dir, scratch, preset),
@@ -222,7 +257,7 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path) ->
         max_minutes=args.minutes,
         reward_source=example_source(preset.reward_example),
         num_envs=8,
-        rollouts=LocalRollouts(num_workers=2),
+        rollouts=rollouts(mode, redis_url),
         seed=seed,
         eval_episodes=1,
         eval_laps=EVAL_LAPS,
@@ -235,14 +270,14 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path) ->
 
 
 def print_table(runs: list[Run]) -> None:
-    print(f"{'setup':<10}{'seed':>5}{'to goal':>10}{'steps':>8}{'iters':>7}{'rollout':>9}"
-          f"{'update':>8}{'eval':>7}{'best lap':>10}"
+    print(f"{'mode':<10}{'setup':<10}{'seed':>5}{'to goal':>10}{'steps':>8}{'iters':>7}"
+          f"{'rollout':>9}{'update':>8}{'eval':>7}{'best lap':>10}"
           "  laps of the qualifying evaluations (s)")  # fmt: skip
     for r in runs:
         took = f"{r.seconds:.1f} s" if r.seconds is not None else f">{r.wall_s:.0f} s"
         steps = str(r.steps) if r.steps is not None else f">{r.total_steps}"
         laps = "; ".join(" ".join(f"{t:.2f}" for t in ev) for ev in r.qualifying_laps) or "-"
-        print(f"{r.setup:<10}{r.seed:>5}{took:>10}{steps:>8}{r.iterations:>7}"
+        print(f"{r.mode:<10}{r.setup:<10}{r.seed:>5}{took:>10}{steps:>8}{r.iterations:>7}"
               f"{r.rollout_s:>8.1f}s{r.update_s:>7.1f}s{r.eval_s:>6.1f}s"
               f"{fmt(r.best_lap_s, 2):>10}  {laps}")  # fmt: skip
 
@@ -254,33 +289,59 @@ def main() -> None:
     parser.add_argument("--lap-limit", type=float, default=10.0, help="fast: slowest lap (s)")
     parser.add_argument("--setups", nargs="+", choices=("defaults", "fast"),
                         default=["defaults", "fast"])  # fmt: skip
+    parser.add_argument(
+        "--modes",
+        nargs="+",
+        choices=MODES,
+        default=["lockstep"],
+        help="how the simulation runs; the first mode gives the main keys",
+    )
     parser.add_argument("--track", default="reinvent_base")
     parser.add_argument("--tracks-dir", type=Path, default=SHARED)
+    parser.add_argument("--redis-url", default="", help="streams: this Redis, not an embedded one")
     args = parser.parse_args()
     setups = [
         Setup("defaults", DEEPRACER_DEFAULTS, None),
         Setup("fast", RACING, args.lap_limit),
     ]
+    modes = list(dict.fromkeys(args.modes))
     print(f"machine: {machine()}", flush=True)
     runs: list[Run] = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for setup in (s for s in setups if s.name in args.setups):
-            for seed in range(args.seeds):
-                print(f"{setup.name} ({setup.preset.label}) seed {seed} on {args.track}",
-                      flush=True)  # fmt: skip
-                runs.append(run_one(setup, seed, args, Path(tmp)))
+    with tempfile.TemporaryDirectory() as tmp, Supervisor() as sup:
+        redis_url = args.redis_url
+        if "streams" in modes and not redis_url:
+            redis = EmbeddedRedis(Path(tmp) / "redis.sock", persist=False)
+            sup.start(redis.spec())
+            sup.wait_until(redis.ping, what="embedded Redis", timeout=30)
+            redis_url = redis.url
+        for mode in modes:
+            for setup in (s for s in setups if s.name in args.setups):
+                for seed in range(args.seeds):
+                    print(f"{mode}: {setup.name} ({setup.preset.label}) seed {seed} on "
+                          f"{args.track}", flush=True)  # fmt: skip
+                    runs.append(run_one(setup, seed, args, Path(tmp), mode=mode,
+                                        redis_url=redis_url))  # fmt: skip
 
     print()
     print_table(runs)
-    summaries = {s.name: summarise([r for r in runs if r.setup == s.name]) for s in setups}
+    summaries = {
+        (mode, s.name): summarise([r for r in runs if r.mode == mode and r.setup == s.name])
+        for mode in modes
+        for s in setups
+    }
     print()
-    for name, s in summaries.items():
+    for (mode, name), s in summaries.items():
         if s.runs:
-            print(f"{name}: median {fmt(s.median_s)} s, {fmt(s.median_steps, 0)} steps to the "
-                  f"goal ({s.reached} of {s.runs} seeds reached it), median qualifying lap "
-                  f"{fmt(s.lap_s, 2)} s, best lap {fmt(s.best_lap_s, 2)} s")  # fmt: skip
+            print(f"{mode} {name}: median {fmt(s.median_s)} s, {fmt(s.median_steps, 0)} steps "
+                  f"to the goal ({s.reached} of {s.runs} seeds reached it), median qualifying "
+                  f"lap {fmt(s.lap_s, 2)} s, best lap {fmt(s.best_lap_s, 2)} s")  # fmt: skip
     print(f"machine after: {machine()}")
-    print(key_values(summaries["defaults"], summaries["fast"]))
+    first = modes[0]
+    line = [key_values(summaries[first, "defaults"], summaries[first, "fast"])]
+    for mode in modes[1:]:
+        line.append(mode_key_values(mode, summaries[mode, "defaults"], summaries[mode, "fast"],
+                                    summaries[first, "fast"]))  # fmt: skip
+    print(" ".join(line))
 
 
 if __name__ == "__main__":

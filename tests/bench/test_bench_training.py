@@ -82,3 +82,23 @@ def test_the_last_line_carries_every_figure_and_the_ratio(bench) -> None:
 def test_the_machine_line_names_cores_and_load(bench) -> None:
     text = bench.machine()
     assert " cores, load average " in text and len(text.rsplit("average ", 1)[1].split()) == 3
+
+
+def test_a_further_mode_adds_its_own_keys_against_the_first_modes_fast_median(bench) -> None:
+    defaults = bench.SetupSummary(40.0, 9_000.0, 31.25, 29.5, 3, 3)
+    fast = bench.SetupSummary(90.0, 30_000.0, 9.5, 8.5, 3, 3)
+    baseline = bench.SetupSummary(120.0, 33_000.0, 9.64, 8.91, 3, 3)
+    assert bench.mode_key_values("streams", defaults, fast, baseline) == (
+        "streams_defaults_median_s=40.0 streams_defaults_lap_s=31.25 "
+        "streams_fast_median_s=90.0 streams_fast_lap_s=9.50 streams_ratio=0.75"
+    )
+    missed = bench.SetupSummary(None, None, None, None, 0, 3)
+    assert bench.mode_key_values("streams", defaults, fast, missed).endswith("streams_ratio=nan")
+
+
+def test_each_mode_trains_as_a_console_job_of_that_mode_would(bench) -> None:
+    local = bench.rollouts("lockstep", "")
+    assert local.num_workers == 2 and not getattr(local, "streamed", False)
+    streams = bench.rollouts("streams", "redis://127.0.0.1:6379/15")
+    assert streams.streamed and streams.workers == 2 and streams.launch is None
+    assert streams.redis_url == "redis://127.0.0.1:6379/15"
