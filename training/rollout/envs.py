@@ -226,19 +226,30 @@ def stack_observations(observations: list) -> np.ndarray | dict[str, np.ndarray]
 
 
 class FrameGrabber:
-    """Encodes JPEG frames of one env (the car's camera and the chase view), 15 fps at most."""
+    """Encodes JPEG frames of one env (the car's camera and the chase view), 15 fps at most.
+
+    Frames keep a fixed cadence: each is due one interval after the last was due, not after
+    it was sent, so steps of 40 ms still give 15 frames a second (counting from the last frame
+    gave every other step: 12.5). After a pause (an update, a reset) the cadence starts again
+    rather than catching up with a burst."""
 
     def __init__(self, env: RacingEnv, interval_s: float = FRAME_INTERVAL_S) -> None:
         self.env = env
         self.interval_s = interval_s
-        self._last = 0.0
+        self._due = 0.0
         self._chase = None
 
+    def due(self, now: float) -> bool:
+        """Whether a frame is due at ``now``; if so, schedules the next one."""
+        if now < self._due:
+            return False
+        late = now - self._due >= self.interval_s
+        self._due = (now if late else self._due) + self.interval_s
+        return True
+
     def grab(self, observation: np.ndarray | dict) -> dict | None:
-        now = time.monotonic()
-        if now - self._last < self.interval_s:
+        if not self.due(time.monotonic()):
             return None
-        self._last = now
         if self._chase is None:
             from racing.sensors import ground_for
             from racing.video import ChaseView
