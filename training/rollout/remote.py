@@ -22,6 +22,8 @@ from training.rollout.envs import EnvSpec
 from training.rollout.vecenv import (
     ROLLOUT_LIMITS,
     STEP_TIMEOUT_S,
+    WORKER_MAIN,
+    WORKER_PREPARE,
     RolloutError,
     _WorkerVecEnv,
     first_envs,
@@ -79,8 +81,8 @@ def serve_rollout(*, redis_url: str, prefix: str, session: str, slot: int, args:
     client = _client(redis_url)
     cmd_key, reply_key = _keys(prefix, session, slot)
     worker = SandboxProcess(
-        target="training.rollout.vecenv:worker_main",
-        prepare="training.rollout.vecenv:worker_prepare",
+        target=WORKER_MAIN,
+        prepare=WORKER_PREPARE,
         reward_source=reward_source,
         args=args,
         limits=ROLLOUT_LIMITS,

@@ -128,6 +128,14 @@ class SandboxProcess:
 
     # -- life cycle --------------------------------------------------------------------------
     def start(self) -> dict[str, str]:
+        """Start the child and wait until it is locked down with the module loaded; returns
+        the layer report. Raises a :class:`SandboxError` subclass when it cannot start."""
+        self.launch()
+        return self.wait_started()
+
+    def launch(self) -> None:
+        """Start the child and hand it its job, without waiting: several children then load
+        at once (:meth:`wait_started` waits for each)."""
         if self.deadline_seconds is not None:
             self._deadline = time.monotonic() + self.deadline_seconds
         hb_fd = os.memfd_create("racecraft-sandbox-heartbeat", os.MFD_CLOEXEC)
@@ -186,6 +194,13 @@ class SandboxProcess:
         }  # fmt: skip
         try:
             self._write(job)
+        except BaseException:
+            self.close()
+            raise
+
+    def wait_started(self) -> dict[str, str]:
+        """After :meth:`launch`: wait for the lock-down report and the loaded module."""
+        try:
             self._locked(self._next(self.limits.start_seconds, "starting"))
             msg = self._next(
                 self.limits.per_call_seconds + CALL_SLACK_S,
