@@ -3,9 +3,12 @@ and the racing preset faster by construction than DeepRacer's defaults."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from racing.actions import DEFAULT_DISCRETE
+from racing.car import FRICTION, GRAVITY, MAX_SPEED, WHEELBASE_M
 from training.rewards.examples import EXAMPLES, example_source
 from training.rl.hyperparams import defaults_for, parse_hyperparameters
 from training.rl.metadata import build_metadata
@@ -41,7 +44,7 @@ def test_deepracer_defaults_are_exactly_the_consoles_defaults() -> None:
 
 
 def test_the_racing_preset_drives_faster_and_looks_less_far_ahead() -> None:
-    assert max(a["speed"] for a in RACING.actions()) == 3.0
+    assert max(a["speed"] for a in RACING.actions()) == 4.0
     assert max(a["speed"] for a in DEEPRACER_DEFAULTS.actions()) == 1.0
     assert RACING.hyperparameters.discount_factor == 0.99
     assert RACING.reward_example == "speed_along_track"
@@ -50,7 +53,25 @@ def test_the_racing_preset_drives_faster_and_looks_less_far_ahead() -> None:
 def test_actions_are_a_fresh_copy() -> None:
     actions = RACING.actions()
     actions[0]["speed"] = 99.0
-    assert RACING.actions()[0]["speed"] == 1.5
+    assert RACING.actions()[0]["speed"] == 4.0
+
+
+def test_every_racing_action_is_one_the_tyres_hold() -> None:
+    """Lateral acceleration v² tan(angle) / wheelbase within the simulated grip (μg)."""
+    grip = FRICTION * GRAVITY
+    for action in RACING.actions():
+        v, angle = action["speed"], math.radians(abs(action["steering_angle"]))
+        assert v**2 * math.tan(angle) / WHEELBASE_M <= grip, action
+    # ... and each angle's fastest speed is the fastest that holds, within 0.5 m/s.
+    fastest: dict[float, float] = {}
+    for action in RACING.actions():
+        angle = abs(action["steering_angle"])
+        fastest[angle] = max(fastest.get(angle, 0.0), action["speed"])
+    for angle, v in fastest.items():
+        lateral = (v + 0.5) ** 2 * math.tan(math.radians(angle)) / WHEELBASE_M
+        assert lateral > grip or v == MAX_SPEED, (angle, v)
+    angles = sorted({a["steering_angle"] for a in RACING.actions()})
+    assert angles == [-30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0]  # symmetric, full lock
 
 
 def test_an_unknown_preset_names_the_known_ones() -> None:
