@@ -181,6 +181,7 @@ class TrainingLoop:
         self.episode_progress: list[float] = []
         self._stop: str | None = None
         self.rollout_done_at = 0.0
+        self._iteration = 0
         self.longest_seen = 0  # steps of the longest episode seen so far, finished or not
         set_torch_threads(config.torch_threads)
         device = resolve_device(config.device)  # before any process starts: fail fast
@@ -228,7 +229,7 @@ class TrainingLoop:
                 self.longest_seen = trace[1]
         frame = info.get("frame")
         if frame is not None:
-            self.hooks.on_frame(frame)
+            self.hooks.on_frame({**frame, "phase": "training", "iteration": self._iteration + 1})
         entry = info.get("episode_entry")
         if entry is not None:
             self.episode_steps.append(int(entry.get("steps", 0)))
@@ -285,9 +286,15 @@ class TrainingLoop:
         obs = venv.reset()
         done = np.zeros(n, dtype=bool)
         outcome = EvaluationOutcome([0.0] * n, [""] * n, [[] for _ in range(n)], [0.0] * n)
+        iteration = self._iteration + 1
         while not done.all():
+            # The live view shows the evaluation lap too: a gap only while the policy updates.
+            venv.want_frames = self.hooks.frames_wanted()
             actions, _ = self.model.predict(obs, deterministic=True)
             obs, rewards, dones, infos = venv.step(actions)
+            frame = infos[0].pop("frame", None) if not done[0] else None
+            if frame is not None:
+                self.hooks.on_frame({**frame, "phase": "evaluation", "iteration": iteration})
             for i in np.flatnonzero(~done):
                 outcome.rewards[i] += float(rewards[i])
                 info = infos[i]
@@ -318,6 +325,7 @@ class TrainingLoop:
                 evaluation = self.evaluate()
                 t2 = time.monotonic()
                 iteration += 1
+                self._iteration = iteration
                 total_steps = self.model.num_timesteps
                 rewards = self.episode_rewards[first_episode:]
                 progress = self.episode_progress[first_episode:]

@@ -84,3 +84,41 @@ def test_training_resumes_from_a_checkpoint():
     again = Collect(iterations=1)
     train(TrainingConfig(**common, initial_checkpoint=first.checkpoints[0]), again)
     assert again.results[0].total_steps > first.results[0].total_steps  # steps carried on
+
+
+class Watch(Collect):
+    """Collects live frames, and how many iterations had ended when each came."""
+
+    def __init__(self, iterations: int) -> None:
+        super().__init__(iterations)
+        self.frames: list[tuple[int, dict]] = []
+
+    def frames_wanted(self) -> bool:
+        return True
+
+    def on_frame(self, frame: dict) -> None:
+        self.frames.append((len(self.results), frame))
+
+
+def test_the_live_view_shows_training_episodes_and_evaluation_laps():
+    """In lockstep the evaluation lap feeds the live view too (the video stops only while the
+    policy updates), each frame saying what it shows."""
+    hooks = Watch(iterations=1)
+    config = TrainingConfig(
+        spec=EnvSpec(track="racecraft_summit", action_space=DISCRETE),
+        hyperparameters=parse_hyperparameters(
+            {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}, "clipped_ppo"
+        ),
+        max_minutes=60,
+        reward_source=REWARD,
+        num_envs=2,
+        eval_episodes=1,
+    )
+    train(config, hooks)
+    phases = {frame["phase"] for _, frame in hooks.frames}
+    assert phases == {"training", "evaluation"}
+    assert all(frame["iteration"] == 1 and ended == 0 for ended, frame in hooks.frames)
+    for _, frame in hooks.frames:
+        assert frame["camera"][:2].tobytes() == b"\xff\xd8"  # JPEG
+    evaluation = [f for _, f in hooks.frames if f["phase"] == "evaluation"]
+    assert evaluation and hooks.frames[-1][1]["phase"] == "evaluation"  # after the rollout
