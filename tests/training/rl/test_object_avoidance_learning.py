@@ -1,6 +1,10 @@
 """A short object-avoidance training run: collisions per lap fall over the iterations (issue
-13). PPO on the lean camera network, the community's object-avoidance example reward, three
-fixed boxes on the beginner oval; a crash ends a training episode, as on DeepRacer."""
+13). PPO on the lean camera network, the community's object-avoidance example reward, four
+fixed boxes on the beginner oval; a crash ends a training episode, as on DeepRacer.
+
+The rate first rises: an untrained car leaves the track before it meets a box, and meets more
+of them as it learns to drive. The test asserts the fall after that: the last iterations crash
+less than half as often per lap as the worst stretch, while driving at least as many laps."""
 
 from __future__ import annotations
 
@@ -16,6 +20,8 @@ from training.rollout.envs import EnvSpec
 
 pytestmark = pytest.mark.slow
 ITERATIONS = 14
+WINDOW = 4
+SEED = 3
 ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-30.0, -15.0, 0.0, 15.0, 30.0)]
 BOXES = RaceConfig(
     race_type=RaceType.OBJECT_AVOIDANCE,
@@ -36,6 +42,7 @@ class CrashesPerLap(TrainingHooks):
     def __init__(self) -> None:
         self.episodes: list[dict] = []
         self.per_iteration: list[float] = []
+        self.laps: list[float] = []
 
     def on_episode(self, entry: dict) -> None:
         self.episodes.append(entry)
@@ -44,6 +51,7 @@ class CrashesPerLap(TrainingHooks):
         crashes = sum(e["episode_status"] == "Crashed" for e in self.episodes)
         laps = sum(float(e["progress"]) for e in self.episodes) / 100.0
         self.per_iteration.append(crashes / max(laps, 0.05))
+        self.laps.append(laps)
         self.episodes = []
 
     def should_stop(self) -> bool:
@@ -58,13 +66,17 @@ def test_collisions_per_lap_fall_as_the_policy_learns() -> None:
         max_minutes=15,
         reward_function=trusted_reward(example_source("object_avoidance")),
         num_envs=8,
-        seed=3,
+        seed=SEED,
         eval_episodes=1,
     )
     train(config, hooks)
-    rates = hooks.per_iteration
+    rates, laps = hooks.per_iteration, hooks.laps
     print("crashes per lap by iteration:", " ".join(f"{r:.2f}" for r in rates))
+    print("laps driven by iteration:", " ".join(f"{x:.1f}" for x in laps))
     assert len(rates) == ITERATIONS
-    first, last = statistics.mean(rates[:3]), statistics.mean(rates[-3:])
-    assert first > 0.5  # an untrained car hits boxes ...
-    assert last < 0.5 * first  # ... and learning halves it
+    windows = [statistics.mean(rates[i : i + WINDOW]) for i in range(ITERATIONS - 2 * WINDOW + 1)]
+    worst = max(range(len(windows)), key=windows.__getitem__)
+    last = statistics.mean(rates[-WINDOW:])
+    assert windows[worst] > 1.0  # the car meets the boxes and hits them ...
+    assert last < 0.5 * windows[worst]  # ... then learns to pass them
+    assert sum(laps[-WINDOW:]) >= sum(laps[worst : worst + WINDOW])  # driving no less
