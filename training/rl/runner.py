@@ -11,12 +11,16 @@ stopping always leaves the last finished iteration's checkpoint.
 
 from __future__ import annotations
 
+import copy
 import io
+import logging
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -31,7 +35,9 @@ from training.rl.algorithms import (
 from training.rl.hyperparams import Hyperparameters
 from training.rl.policies import LEAN
 from training.rollout.backends import LocalRollouts, RolloutBackend
-from training.rollout.envs import EnvSpec
+from training.rollout.envs import FRAME_INTERVAL_S, EnvSpec
+
+log = logging.getLogger(__name__)
 
 INITIAL_EPISODE_STEPS = 40.0
 """Guess of an early episode's length (steps) before any has finished."""
@@ -163,8 +169,63 @@ class _StepWatcher(BaseCallback):
             loop.venv.want_frames = loop.hooks.frames_wanted()
         return not loop.stop_reason()
 
+    def _on_rollout_start(self) -> None:
+        self.loop.spectator.stop()
+
     def _on_rollout_end(self) -> None:
         self.loop.rollout_done_at = time.monotonic()
+        self.loop.spectator.start()
+
+
+class _Spectator:
+    """Keeps the live view going while the policy updates: drives the evaluation env with a
+    frozen copy of the policy that drove the rollout, at the view's pace (15 steps a second of
+    real time, a few per cent of a core), from the rollout's end until the next rollout or
+    evaluation. Only when someone watches. Its laps are for the eyes: nothing is scored or
+    logged, and an error in one only ends it (the evaluation that follows reports it)."""
+
+    def __init__(self, loop: TrainingLoop) -> None:
+        self.loop = loop
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    def start(self) -> None:
+        loop = self.loop
+        if self._thread is not None or not isinstance(loop.model, DeepRacerPPO):
+            return  # SAC learns between short stretches of driving: no long pause to fill
+        if not loop.hooks.frames_wanted():
+            return
+        policy = copy.deepcopy(loop.model.policy)  # the update changes the trainer's in place
+        policy.set_training_mode(False)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._drive, args=(policy, loop._iteration + 1),
+                                        name="spectator", daemon=True)  # fmt: skip
+        self._thread.start()
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join()
+            self._thread = None
+
+    def _drive(self, policy, iteration: int) -> None:
+        venv, hooks, stop = self.loop.eval_venv, self.loop.hooks, self._stop
+        try:
+            venv.want_frames = True
+            obs = venv.reset()
+            due = time.monotonic()
+            while not stop.is_set():
+                with torch.no_grad():
+                    actions, _ = policy.predict(obs, deterministic=True)
+                obs, _rewards, _dones, infos = venv.step(actions)  # ends reset by themselves
+                frame = infos[0].pop("frame", None)
+                if frame is not None:
+                    hooks.on_frame({**frame, "phase": "evaluation", "iteration": iteration,
+                                    "spare": True})  # fmt: skip
+                due += FRAME_INTERVAL_S
+                stop.wait(max(0.0, due - time.monotonic()))
+        except Exception:  # noqa: BLE001 - the video is never worth the training
+            log.warning("the live view's lap during the update stopped", exc_info=True)
 
 
 class TrainingLoop:
@@ -182,6 +243,7 @@ class TrainingLoop:
         self._stop: str | None = None
         self.rollout_done_at = 0.0
         self._iteration = 0
+        self.spectator = _Spectator(self)
         self.longest_seen = 0  # steps of the longest episode seen so far, finished or not
         set_torch_threads(config.torch_threads)
         device = resolve_device(config.device)  # before any process starts: fail fast
@@ -318,7 +380,10 @@ class TrainingLoop:
                 t0 = time.monotonic()
                 first_episode = len(self.episode_steps)
                 steps_before = self.model.num_timesteps
-                self._rollout_and_update()
+                try:
+                    self._rollout_and_update()
+                finally:
+                    self.spectator.stop()
                 t1 = time.monotonic()
                 if self.stop_reason():
                     break  # an interrupted rollout was not learned from
@@ -364,6 +429,7 @@ class TrainingLoop:
         return buffer.getvalue()
 
     def close(self) -> None:
+        self.spectator.stop()
         for venv in (self.venv, self.eval_venv):
             try:
                 venv.close()

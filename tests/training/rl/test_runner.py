@@ -3,6 +3,8 @@ rewards, checkpoints that load safely, stopping, and resuming from a checkpoint.
 
 from __future__ import annotations
 
+import threading
+
 import pytest
 
 from training.rl.checkpoints import load_checkpoint
@@ -122,3 +124,48 @@ def test_the_live_view_shows_training_episodes_and_evaluation_laps():
         assert frame["camera"][:2].tobytes() == b"\xff\xd8"  # JPEG
     evaluation = [f for _, f in hooks.frames if f["phase"] == "evaluation"]
     assert evaluation and hooks.frames[-1][1]["phase"] == "evaluation"  # after the rollout
+
+
+def test_the_live_view_goes_on_while_the_policy_updates(monkeypatch):
+    """Between the rollout and the evaluation a frozen copy of the policy drives the
+    evaluation env for the live view. The update here waits (60 s at most) until such a frame
+    came, so the test does not depend on how long an update takes."""
+    from training.rl import algorithms
+
+    hooks = Watch(iterations=1)
+    spare_seen = threading.Event()
+    original_on_frame = hooks.on_frame
+
+    def on_frame(frame: dict) -> None:
+        original_on_frame(frame)
+        if frame.get("spare"):
+            spare_seen.set()
+
+    hooks.on_frame = on_frame
+    original_train = algorithms.DeepRacerPPO.train
+    waited: list[bool] = []
+
+    def train_after_a_spare_frame(self) -> None:
+        waited.append(spare_seen.wait(timeout=60))
+        original_train(self)
+
+    monkeypatch.setattr(algorithms.DeepRacerPPO, "train", train_after_a_spare_frame)
+    config = TrainingConfig(
+        spec=EnvSpec(track="racecraft_summit", action_space=DISCRETE),
+        hyperparameters=parse_hyperparameters(
+            {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}, "clipped_ppo"
+        ),
+        max_minutes=60,
+        reward_source=REWARD,
+        num_envs=2,
+        eval_episodes=1,
+    )
+    train(config, hooks)
+    assert waited == [True]
+    spare = [f for _, f in hooks.frames if f.get("spare")]
+    assert spare and all(f["phase"] == "evaluation" and f["iteration"] == 1 for f in spare)
+    # The order a viewer sees: training episodes, the spare lap, then the scored evaluation.
+    phases = [("spare" if f.get("spare") else f["phase"]) for _, f in hooks.frames]
+    first_spare = phases.index("spare")
+    assert set(phases[:first_spare]) == {"training"}
+    assert phases[-1] == "evaluation"
