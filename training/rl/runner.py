@@ -174,22 +174,24 @@ class _StepWatcher(BaseCallback):
 
     def _on_rollout_end(self) -> None:
         self.loop.rollout_done_at = time.monotonic()
-        self.loop.spectator.start()
+        self.loop.spectator.start(self.loop._iteration + 1)
 
 
 class _Spectator:
     """Keeps the live view going while the policy updates: drives the evaluation env with a
     frozen copy of the policy that drove the rollout, at the view's pace (15 steps a second of
-    real time, a few per cent of a core), from the rollout's end until the next rollout or
-    evaluation. Only when someone watches. Its laps are for the eyes: nothing is scored or
-    logged, and an error in one only ends it (the evaluation that follows reports it)."""
+    real time), from the rollout's end until the evaluation; and with the evaluated policy from
+    the evaluation's end while the iteration is logged, until the next rollout. Only when
+    someone watches. Its laps are for the eyes: nothing is scored or logged, and an error in
+    one only ends it (the evaluation that follows reports it)."""
 
     def __init__(self, loop: TrainingLoop) -> None:
         self.loop = loop
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
 
-    def start(self) -> None:
+    def start(self, iteration: int) -> None:
+        """Drive with the policy as it is now, labelled ``iteration`` (the one it belongs to)."""
         loop = self.loop
         if self._thread is not None or not isinstance(loop.model, DeepRacerPPO):
             return  # SAC learns between short stretches of driving: no long pause to fill
@@ -198,7 +200,7 @@ class _Spectator:
         policy = copy.deepcopy(loop.model.policy)  # the update changes the trainer's in place
         policy.set_training_mode(False)
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._drive, args=(policy, loop._iteration + 1),
+        self._thread = threading.Thread(target=self._drive, args=(policy, iteration),
                                         name="spectator", daemon=True)  # fmt: skip
         self._thread.start()
 
@@ -411,6 +413,7 @@ class TrainingLoop:
                     best_progress, best_iteration = evaluation.mean_progress, iteration
                     result.best = True
                 rows, self.rows = self.rows, []
+                self.spectator.start(iteration)  # while the iteration is stored and logged
                 self.hooks.on_iteration(result, self.checkpoint(), rows)
         finally:
             self.close()

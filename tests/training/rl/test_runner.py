@@ -122,8 +122,9 @@ def test_the_live_view_shows_training_episodes_and_evaluation_laps():
     assert all(frame["iteration"] == 1 and ended == 0 for ended, frame in hooks.frames)
     for _, frame in hooks.frames:
         assert frame["camera"][:2].tobytes() == b"\xff\xd8"  # JPEG
-    evaluation = [f for _, f in hooks.frames if f["phase"] == "evaluation"]
-    assert evaluation and hooks.frames[-1][1]["phase"] == "evaluation"  # after the rollout
+    scored = [i for i, (_, f) in enumerate(hooks.frames) if f["phase"] == "evaluation"]
+    trained = [i for i, (_, f) in enumerate(hooks.frames) if f["phase"] == "training"]
+    assert scored and trained and max(trained) < min(scored)  # the evaluation after the rollout
 
 
 def test_the_live_view_goes_on_while_the_policy_updates(monkeypatch):
@@ -168,4 +169,4 @@ def test_the_live_view_goes_on_while_the_policy_updates(monkeypatch):
     phases = [("spare" if f.get("spare") else f["phase"]) for _, f in hooks.frames]
     first_spare = phases.index("spare")
     assert set(phases[:first_spare]) == {"training"}
-    assert phases[-1] == "evaluation"
+    assert "evaluation" in phases[first_spare:]
