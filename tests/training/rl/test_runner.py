@@ -102,11 +102,9 @@ class Watch(Collect):
         self.frames.append((len(self.results), frame))
 
 
-def test_the_live_view_shows_training_episodes_and_evaluation_laps():
-    """In lockstep the evaluation lap feeds the live view too (the video stops only while the
-    policy updates), each frame saying what it shows."""
-    hooks = Watch(iterations=1)
-    config = TrainingConfig(
+def one_short_iteration() -> TrainingConfig:
+    """PPO on 2 cars, 4 episodes an update, one evaluation episode (the hooks stop it)."""
+    return TrainingConfig(
         spec=EnvSpec(track="racecraft_summit", action_space=DISCRETE),
         hyperparameters=parse_hyperparameters(
             {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}, "clipped_ppo"
@@ -116,7 +114,13 @@ def test_the_live_view_shows_training_episodes_and_evaluation_laps():
         num_envs=2,
         eval_episodes=1,
     )
-    train(config, hooks)
+
+
+def test_the_live_view_shows_training_episodes_and_evaluation_laps():
+    """In lockstep the evaluation lap feeds the live view too, each frame saying what it
+    shows."""
+    hooks = Watch(iterations=1)
+    train(one_short_iteration(), hooks)
     phases = {frame["phase"] for _, frame in hooks.frames}
     assert phases == {"training", "evaluation"}
     assert all(frame["iteration"] == 1 and ended == 0 for ended, frame in hooks.frames)
@@ -151,17 +155,7 @@ def test_the_live_view_goes_on_while_the_policy_updates(monkeypatch):
         original_train(self)
 
     monkeypatch.setattr(algorithms.DeepRacerPPO, "train", train_after_a_spare_frame)
-    config = TrainingConfig(
-        spec=EnvSpec(track="racecraft_summit", action_space=DISCRETE),
-        hyperparameters=parse_hyperparameters(
-            {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}, "clipped_ppo"
-        ),
-        max_minutes=60,
-        reward_source=REWARD,
-        num_envs=2,
-        eval_episodes=1,
-    )
-    train(config, hooks)
+    train(one_short_iteration(), hooks)
     assert waited == [True]
     spare = [f for _, f in hooks.frames if f.get("spare")]
     assert spare and all(f["phase"] == "evaluation" and f["iteration"] == 1 for f in spare)
