@@ -111,6 +111,7 @@ def test_the_runner_keeps_the_best_so_far_unless_beaten(monkeypatch, best_score,
         self.rows, self.episode_steps, self.episode_rewards, self.episode_progress = [], [], [], []
         self._stop, self.rollout_done_at = None, 0.0
         self.model = type("M", (), {"num_timesteps": 0})()
+        self._iteration, self.spectator = 0, runner._Spectator(self)  # never drives: no PPO
 
     monkeypatch.setattr(TrainingLoop, "__init__", fake_init)
     monkeypatch.setattr(TrainingLoop, "_rollout_and_update", lambda self: None)
