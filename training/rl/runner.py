@@ -356,7 +356,8 @@ class TrainingLoop:
             venv.want_frames = self.hooks.frames_wanted()
             actions, _ = self.model.predict(obs, deterministic=True)
             obs, rewards, dones, infos = venv.step(actions)
-            frame = infos[0].pop("frame", None) if not done[0] else None
+            # The first car's frames (it drives on after its episode while the others finish).
+            frame = infos[0].pop("frame", None)
             if frame is not None:
                 self.hooks.on_frame({**frame, "phase": "evaluation", "iteration": iteration})
             for i in np.flatnonzero(~done):
