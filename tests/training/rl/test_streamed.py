@@ -73,6 +73,16 @@ class Collect(TrainingHooks):
         return len(self.results) >= self.iterations
 
 
+class CollectUntilTrainingFrames(Collect):
+    """As :class:`Collect`, and on until a training episode's frame came (8 iterations at
+    most): which worker is watched, and whether it drives a training episode while watched
+    or an evaluation lap, depends on the machine's load."""
+
+    def should_stop(self) -> bool:
+        seen = any(f["phase"] == "training" for f in self.frames)
+        return len(self.results) >= (self.iterations if seen else 8)
+
+
 def _config(redis_url: str, prefix: str, **overrides) -> TrainingConfig:
     values = {
         "spec": EnvSpec(track="racecraft_oval", action_space=DISCRETE),
@@ -92,7 +102,7 @@ def _config(redis_url: str, prefix: str, **overrides) -> TrainingConfig:
 def test_streamed_iterations_with_evaluations_and_live_frames(redis_url, settings):
     config = _config(redis_url, settings.REDIS_PREFIX)
     assert streamed(config)
-    hooks = Collect(iterations=2, watch=True)
+    hooks = CollectUntilTrainingFrames(iterations=2, watch=True)
     summary = train(config, hooks)
     # Every finished update gets its row: the one after the stop request too.
     assert summary.stopped_by == "user" and summary.iterations >= 2
