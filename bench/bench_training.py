@@ -184,12 +184,17 @@ def fmt(value: float | None, digits: int = 1) -> str:
     return "nan" if value is None else f"{value:.{digits}f}"
 
 
+def median_ratio(over: SetupSummary, under: SetupSummary) -> float | None:
+    """``over``'s median seconds / ``under``'s; None when either missed its goal."""
+    if under.median_s and over.median_s is not None:
+        return over.median_s / under.median_s
+    return None
+
+
 def key_values(defaults: SetupSummary, fast: SetupSummary) -> str:
     """The last line: medians, laps and the ratio fast / defaults (both from this run)."""
     bests = [b for b in (defaults.best_lap_s, fast.best_lap_s) if b is not None]
-    ratio = None
-    if defaults.median_s and fast.median_s is not None:
-        ratio = fast.median_s / defaults.median_s
+    ratio = median_ratio(fast, defaults)
     return (
         f"defaults_median_s={fmt(defaults.median_s)} defaults_lap_s={fmt(defaults.lap_s, 2)} "
         f"fast_median_s={fmt(fast.median_s)} fast_lap_s={fmt(fast.lap_s, 2)} "
@@ -201,9 +206,7 @@ def mode_key_values(mode: str, defaults: SetupSummary, fast: SetupSummary,
                     baseline_fast: SetupSummary) -> str:  # fmt: skip
     """A further mode's keys, prefixed with its name; ``{mode}_ratio`` = its fast median over
     the first mode's (below 1: this mode reaches a fast lap sooner)."""
-    ratio = None
-    if baseline_fast.median_s and fast.median_s is not None:
-        ratio = fast.median_s / baseline_fast.median_s
+    ratio = median_ratio(fast, baseline_fast)
     return (
         f"{mode}_defaults_median_s={fmt(defaults.median_s)} "
         f"{mode}_defaults_lap_s={fmt(defaults.lap_s, 2)} "
