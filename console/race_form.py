@@ -19,16 +19,17 @@ RACE_FIELDS = (
     "number_of_objects", "object_placement", "object_positions", "number_of_bots", "bot_speed",
     "bot_lane_change", "lane_change_min_s", "lane_change_max_s",
 )  # fmt: skip
-DEFAULTS = {"number_of_objects": 3, "number_of_bots": 2, "bot_speed": 0.5,
-            "lane_change_min_s": 3.0, "lane_change_max_s": 5.0}  # fmt: skip
+DEFAULTS = services.RACE_DEFAULTS
 
 
 class RaceSettingsForm(forms.Form):
     """``race_type`` and the settings of object avoidance and head-to-bot races."""
 
     race_type = forms.ChoiceField(choices=RaceType.choices, initial=RaceType.TIME_TRIAL)
-    number_of_objects = forms.IntegerField(label="Number of boxes", initial=3, required=False,
-                                           help_text="1 to 6.")  # fmt: skip
+    number_of_objects = forms.IntegerField(
+        label="Number of boxes", initial=DEFAULTS["number_of_objects"], required=False,
+        help_text="1 to 6.",
+    )  # fmt: skip
     object_placement = forms.ChoiceField(label="Box placement", choices=PLACEMENTS,
                                          initial="fixed", required=False)  # fmt: skip
     object_positions = forms.CharField(
@@ -36,15 +37,23 @@ class RaceSettingsForm(forms.Form):
         help_text="fraction of the lap,lane per box, e.g. 0.25,1;0.5,-1 (lane 1 inner, -1 "
         "outer; 0.07-0.90, at least 0.13 apart). Blank: evenly spaced.",
     )  # fmt: skip
-    number_of_bots = forms.IntegerField(label="Number of bot cars", initial=2, required=False,
-                                        help_text="1 to 6.")  # fmt: skip
-    bot_speed = forms.FloatField(label="Bot speed (m/s)", initial=0.5, required=False,
-                                 help_text="0.2 to 6 m/s.")  # fmt: skip
+    number_of_bots = forms.IntegerField(
+        label="Number of bot cars", initial=DEFAULTS["number_of_bots"], required=False,
+        help_text="1 to 6.",
+    )  # fmt: skip
+    bot_speed = forms.FloatField(
+        label="Bot speed (m/s)", initial=DEFAULTS["bot_speed"], required=False,
+        help_text="0.2 to 6 m/s.",
+    )  # fmt: skip
     bot_lane_change = forms.BooleanField(label="Bots change lanes", required=False)
-    lane_change_min_s = forms.FloatField(label="Lane change after at least (s)", initial=3.0,
-                                         required=False)  # fmt: skip
-    lane_change_max_s = forms.FloatField(label="Lane change after at most (s)", initial=5.0,
-                                         required=False)  # fmt: skip
+    lane_change_min_s = forms.FloatField(
+        label="Lane change after at least (s)", initial=DEFAULTS["lane_change_min_s"],
+        required=False,
+    )  # fmt: skip
+    lane_change_max_s = forms.FloatField(
+        label="Lane change after at most (s)", initial=DEFAULTS["lane_change_max_s"],
+        required=False,
+    )  # fmt: skip
 
     def race_config(self, data: dict[str, Any]) -> dict[str, Any]:
         """The race's settings as the services store them; raises ``ServiceError``."""

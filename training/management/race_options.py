@@ -29,7 +29,8 @@ from training.services import ServiceError
 
 RACE_TYPE_CHOICES = [str(t).lower() for t in services.SUPPORTED_RACE_TYPES]
 """``time_trial``, ``object_avoidance``, ``head_to_bot`` (upper case accepted too)."""
-_DEFAULTS = RaceConfig()
+_DEFAULTS = RaceConfig(**services.RACE_DEFAULTS)
+"""A new race's settings where no option is given (the wizard's too)."""
 
 
 @dataclass(frozen=True)

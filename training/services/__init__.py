@@ -53,6 +53,7 @@ from training.services.models import (
     model_update_reward,
 )
 from training.services.racing import (
+    RACE_DEFAULTS,
     SUPPORTED_RACE_TYPES,
     parse_object_positions,
     race_config,
@@ -71,6 +72,7 @@ __all__ = [
     "check_model_spec",
     "check_name",
     "check_race_type",
+    "RACE_DEFAULTS",
     "SUPPORTED_RACE_TYPES",
     "parse_object_positions",
     "race_config",

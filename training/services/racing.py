@@ -27,6 +27,12 @@ SETTINGS_OF = {
     RaceType.HEAD_TO_BOT: BOT_SETTINGS + ("min_bot_gap_m",),
 }
 """The settings each race type takes (others are refused, so a typo is never ignored)."""
+RACE_DEFAULTS = {"number_of_objects": 3, "number_of_bots": 2, "bot_speed": 0.5,
+                 "lane_change_min_s": 3.0, "lane_change_max_s": 5.0}  # fmt: skip
+"""What a new race starts from where the user gives nothing: in the wizard, the evaluation
+form, the league and the command line alike. All are the simulator's (DeepRacer's) own but the
+bot speed: 0.5 m/s, not the simulator's 0.2, as DeepRacer's guide suggests (bots at 0.4-0.5 m/s
+against a car at 0.8-1 m/s); at 0.2 m/s a bot car is nearly a box."""
 _FIELD_OF_WORD = (
     ("object_positions", "object_positions"),
     ("object position", "object_positions"),
@@ -40,9 +46,9 @@ _FIELD_OF_WORD = (
 
 def race_settings(race_type: str, settings: dict[str, Any] | None = None) -> dict[str, Any]:
     """The stored form of a race's settings: ``{}`` for a time trial, else the race type and
-    its own settings from ``RaceConfig.to_dict()`` (defaults filled in), so the stored form
-    is accepted again as it is. Raises :class:`ServiceError` on the field of the first bad
-    setting."""
+    its own settings from ``RaceConfig.to_dict()`` (:data:`RACE_DEFAULTS`, then the
+    simulator's, filled in), so the stored form is accepted again as it is. Raises
+    :class:`ServiceError` on the field of the first bad setting."""
     check_race_type(race_type)
     settings = dict(settings or {})
     settings.pop("race_type", None)
@@ -53,8 +59,9 @@ def race_settings(race_type: str, settings: dict[str, Any] | None = None) -> dic
         raise ServiceError(f"{label} has no setting {unknown[0]!r}", field="race_type")
     if race_type == RaceType.TIME_TRIAL:
         return {}
+    defaults = {k: v for k, v in RACE_DEFAULTS.items() if k in allowed}
     try:
-        config = RaceConfig.from_dict({"race_type": race_type, **settings})
+        config = RaceConfig.from_dict({"race_type": race_type, **defaults, **settings})
     except (ValueError, TypeError) as exc:
         raise ServiceError(str(exc), field=_field_for(str(exc))) from None
     stored = config.to_dict()

@@ -70,6 +70,18 @@ def test_a_head_to_bot_model_from_a_comma_list_of_sensors() -> None:
     assert "Note: DeepRacer recommends stereo cameras with a LIDAR" in out
 
 
+def test_a_head_to_bot_model_without_settings_gets_the_wizards_defaults() -> None:
+    from console.race_form import RaceSettingsForm
+
+    out = create("--name", "plain", "--race-type", "head_to_bot")
+    model = RacingModel.objects.get(name="plain")
+    form = RaceSettingsForm(data={"race_type": "HEAD_TO_BOT"})
+    assert form.is_valid(), form.errors
+    assert model.race_config == form.race_config(form.cleaned_data)
+    assert model.race_config["bot_speed"] == 0.5 and model.race_config["number_of_bots"] == 2
+    assert "head-to-bot (2 bots at 0.5 m/s)" in out
+
+
 @pytest.mark.parametrize(
     "args, message",
     [

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from racing.race import RaceType
+from racing.race import RaceConfig, RaceType
 from tests.training.services.factory import create
 from training import services
 from training.models import EvaluationJob, RacingModel
@@ -23,6 +23,14 @@ def test_time_trial_has_no_settings_and_others_get_defaults():
     assert boxes["randomize_objects"] is False
     bots = services.race_settings("HEAD_TO_BOT", {"bot_speed": 6, "bot_lane_change": True})
     assert bots["number_of_bots"] == 2 and bots["bot_speed"] == 6 and bots["bot_lane_change"]
+
+
+def test_a_new_head_to_bot_race_has_the_bots_at_the_consoles_speed_not_the_simulators():
+    bots = services.race_settings("HEAD_TO_BOT", {})
+    assert bots["bot_speed"] == services.RACE_DEFAULTS["bot_speed"] == 0.5
+    assert RaceConfig().bot_speed == 0.2  # DeepRacer's simulator default, kept in racing/
+    boxes = services.race_settings("OBJECT_AVOIDANCE", {"object_positions": [[0.3, 1]]})
+    assert boxes["number_of_objects"] == 1  # positions still set the count
 
 
 @pytest.mark.parametrize(
