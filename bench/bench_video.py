@@ -19,6 +19,11 @@ policy), ``--max-seconds`` at most; the job is then stopped and its worker's fra
 read from Redis (:func:`training.live.frame_counts`: frames it encoded once and sent once to
 the job's group).
 
+``--whole-run MINUTES`` watches a whole training run instead: the model's stop condition is
+that many minutes and nobody stops the job. The window runs from the page's first frame to the
+end of training (the job's start plus its minutes), so a pause anywhere, the last iteration's
+included, shows as a gap; how long the first frame took after the job started is printed too.
+
 Prints a table per mode, the gaps over 1 s with the frames on either side (what the worker
 said it showed: phase, iteration, policy version), and last ``fps=``, ``max_gap_s=`` and
 ``encodes_per_frame=`` of the streamed mode with ``ratio=`` (streamed fps / lockstep fps, both
@@ -104,6 +109,13 @@ def run_mode(mode: str, args: argparse.Namespace) -> dict:
         print(f"[{mode}] console log: {var / 'up.log'}", file=sys.stderr)
 
 
+def training_end(job, now_mono: float, now_wall: float) -> float:
+    """The monotonic time at which ``job`` (started, with its ``max_minutes``) stops training:
+    its recorded start plus its minutes, read off the wall clock at ``now_wall``."""
+    end_wall = job.started_at.timestamp() + job.max_minutes * 60
+    return now_mono + (end_wall - now_wall)
+
+
 def watch_job(mode: str, args: argparse.Namespace, base: str) -> dict:
     import django
 
@@ -123,6 +135,7 @@ def watch_job(mode: str, args: argparse.Namespace, base: str) -> dict:
         owner=user, name=f"video-{mode}", track_id="racecraft_oval", action_space=ACTIONS,
         reward_function=REWARD, validate_reward=False, seed=1,
         hyperparameters={"num_episodes_between_training": args.episodes},
+        **({"max_minutes": args.whole_run} if args.whole_run else {}),
     )  # fmt: skip
     session = SessionStore()
     session["_auth_user_id"] = str(user.pk)
@@ -163,9 +176,13 @@ def watch_job(mode: str, args: argparse.Namespace, base: str) -> dict:
                                  f"{state.status} {state.error!r}")  # fmt: skip
             page.wait_for_timeout(200)
         t0 = frames[0][0]
-        print(f"[{mode}] first frame {t0 - started:.1f} s after the start", file=sys.stderr)
+        first_frame_s = t0 - started
+        print(f"[{mode}] first frame {first_frame_s:.1f} s after the start", file=sys.stderr)
         finished_at: list[tuple[int, float]] = []  # (iteration, when its row was seen)
         seen = TrainingJob.objects.get(pk=job.pk).iterations
+        if args.whole_run:
+            return whole_run(mode, job, page, others, browser, frames, t0, first_frame_s,
+                             args)  # fmt: skip
         # At least --seconds, and on until --iterations policy updates were recorded or, as
         # streamed workers record an update only after its evaluation laps, until the frames
         # have shown that policy version for HANDOVER_S: the handover is in the window.
@@ -215,6 +232,37 @@ def watch_job(mode: str, args: argparse.Namespace, base: str) -> dict:
             "metrics": metrics}  # fmt: skip
 
 
+def whole_run(mode, job, page, others, browser, frames, t0, first_frame_s, args) -> dict:
+    """``--whole-run``: watch until the job ends by itself; the window ends with training."""
+    from training import live
+    from training.models import IterationMetric, JobStatus, TrainingJob
+
+    done = (JobStatus.COMPLETED, JobStatus.CANCELED, JobStatus.FAILED)
+    limit = args.whole_run * 60 + STOP_TIMEOUT_S + FIRST_FRAME_TIMEOUT_S
+    while True:
+        state = TrainingJob.objects.get(pk=job.pk)
+        if state.status in done:
+            break
+        if time.monotonic() - t0 > limit:
+            raise SystemExit(f"[{mode}] the job did not end in {limit:.0f} s")
+        page.wait_for_timeout(1000)
+    page.wait_for_timeout(2000)  # the last frames in flight
+    t_stop = training_end(state, time.monotonic(), time.time())
+    received = others.evaluate("window.viewerFrames")
+    opened = sum(others.evaluate("window.viewerOpen"))
+    received.append(len(frames))
+    browser.close()
+    if state.status != JobStatus.COMPLETED:
+        raise SystemExit(f"[{mode}] the job ended {state.status}: {state.error!r}")
+    window = [(t, f) for t, f in frames if t0 <= t <= t_stop]
+    counts = live.frame_counts(live.job_group("training", job.pk))
+    metrics = list(IterationMetric.objects.filter(job=job).order_by("iteration").values(
+        "iteration", "rollout_s", "update_s", "eval_s", "elapsed_s"))  # fmt: skip
+    stats = video_stats(window, t0, t_stop, received=received, counts=counts)
+    return {**stats, "mode": mode, "viewers_open": opened + 1, "iterations_at": [],
+            "metrics": metrics, "first_frame_s": first_frame_s}  # fmt: skip
+
+
 def video_stats(window: list[tuple[float, dict]], t0: float, t_stop: float, *,
                 received: list[int], counts: dict[str, int]) -> dict:  # fmt: skip
     """What the viewers got: frames/s over the window ``[t0, t_stop]`` (monotonic seconds),
@@ -262,10 +310,14 @@ def shown(frame: dict) -> str:
 
 
 def report(results: list[dict], args: argparse.Namespace) -> None:
+    if args.whole_run:
+        span = f"a whole {args.whole_run}-minute training run, from the first frame to its end"
+    else:
+        span = (f"at least {args.seconds:.0f} s and {args.iterations} update(s), at most "
+                f"{args.max_seconds:.0f} s")  # fmt: skip
     print(f"\nlive video, {args.viewers} viewers (1 Chromium model page + "
-          f"{args.viewers - 1} websockets), window from the first frame: at least "
-          f"{args.seconds:.0f} s and {args.iterations} update(s), at most "
-          f"{args.max_seconds:.0f} s; {args.episodes} episodes per update")  # fmt: skip
+          f"{args.viewers - 1} websockets), window from the first frame: {span}; "
+          f"{args.episodes} episodes per update")  # fmt: skip
     print(f"{'mode':<10}{'window s':>9}{'frames':>8}{'fps':>7}{'max gap s':>10}{'encoded':>9}"
           f"{'sent':>7}{'recv/viewer min/mean/max':>26}{'enc/frame':>10}")  # fmt: skip
     for r in results:
@@ -275,6 +327,9 @@ def report(results: list[dict], args: argparse.Namespace) -> None:
               f"{r['max_gap_s']:>10.2f}{r['encoded']:>9}{r['sent']:>7}{spread:>26}"
               f"{r['encodes_per_frame']:>10.2f}")  # fmt: skip
     for r in results:
+        if "first_frame_s" in r:
+            print(f"\n[{r['mode']}] first frame {r['first_frame_s']:.1f} s after the job "
+                  "started")  # fmt: skip
         print(f"\n[{r['mode']}] viewers connected: {r['viewers_open']}/{args.viewers}; "
               f"iterations seen at (s into the window): "
               f"{', '.join(f'{n}@{t:.0f}' for n, t in r['iterations_at']) or 'none'}")  # fmt: skip
@@ -316,6 +371,8 @@ def main() -> None:
     parser.add_argument("--viewers", type=int, default=20)
     parser.add_argument("--episodes", type=int, default=20, help="episodes per policy update")
     parser.add_argument("--modes", default="lockstep,streams")
+    parser.add_argument("--whole-run", type=int, default=0, metavar="MINUTES",
+                        help="watch a whole training run of this many minutes")  # fmt: skip
     parser.add_argument("--one-mode", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one_mode:  # a child: one mode, its result as the last line
@@ -326,7 +383,8 @@ def main() -> None:
         out = subprocess.run(
             [sys.executable, __file__, "--one-mode", mode, "--seconds", str(args.seconds),
              "--viewers", str(args.viewers), "--episodes", str(args.episodes),
-             "--iterations", str(args.iterations), "--max-seconds", str(args.max_seconds)],
+             "--iterations", str(args.iterations), "--max-seconds", str(args.max_seconds),
+             "--whole-run", str(args.whole_run)],
             cwd=ROOT, stdout=subprocess.PIPE, text=True, check=False,
         )  # fmt: skip
         lines = [x for x in out.stdout.splitlines() if x.startswith(RESULT)]

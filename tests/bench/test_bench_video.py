@@ -59,3 +59,12 @@ def test_the_last_line_is_the_streamed_mode_against_lockstep(bench) -> None:
     assert values["mode"] == "streams" and values["baseline_fps"] == "2.00"
     assert "encodes_per_frame" in values and "max_gap_s" in values
     assert bench.last_line([result("streams", 13.0)]).split()[3] == "ratio=0.00"
+
+
+def test_a_whole_run_ends_with_its_training_time(bench) -> None:
+    from datetime import UTC, datetime
+    from types import SimpleNamespace
+
+    job = SimpleNamespace(started_at=datetime.fromtimestamp(1_000.0, UTC), max_minutes=10)
+    # Seen at wall time 1,300 (monotonic 50): training ends 300 s later, at monotonic 350.
+    assert bench.training_end(job, 50.0, 1_300.0) == pytest.approx(350.0)
