@@ -12,7 +12,7 @@ from typing import Any
 from django import forms
 
 from training import services
-from training.models import RaceType
+from training.models import Direction, RaceType
 
 PLACEMENTS = [("fixed", "Fixed"), ("random", "Random each episode")]
 RACE_FIELDS = (
@@ -80,6 +80,47 @@ class RaceSettingsForm(forms.Form):
                 "lane_change_max_s": value("lane_change_max_s"),
             }
         return services.race_settings(race_type, settings)
+
+
+class RaceLayoutForm(RaceSettingsForm):
+    """A race's layout on a track, for its preview (``/tracks/<id>/race.png``): the race
+    settings, the driving direction and which random draw to show."""
+
+    direction = forms.ChoiceField(choices=Direction.choices, initial=Direction.NATIVE,
+                                  required=False)  # fmt: skip
+    seed = forms.IntegerField(
+        label="Random draw", min_value=0, max_value=999_999, initial=0, required=False,
+        help_text="Which random placement to show, for boxes placed at random.",
+    )  # fmt: skip
+
+    def layout(self) -> tuple[str, str, dict[str, Any], int]:
+        """``(direction, race_type, race settings, seed)``. Raises ``ServiceError`` naming the
+        first bad field, in words."""
+        if not self.is_valid():
+            name, errors = next(iter(self.errors.items()))
+            label = self[name].label if name in self.fields else None
+            text = " ".join(str(e) for e in errors)
+            raise services.ServiceError(f"{label}: {text}" if label else text, field=name)
+        data = self.cleaned_data
+        race = self.race_config(data)
+        return (
+            data.get("direction") or Direction.NATIVE,
+            data["race_type"],
+            race,
+            data.get("seed") or 0,
+        )
+
+
+class TrackLayoutForm(RaceLayoutForm):
+    """The Tracks page's layout preview: :class:`RaceLayoutForm` on a chosen track."""
+
+    track = forms.ChoiceField(label="Track", choices=())
+    field_order = ["track", "direction", "race_type"]
+
+    def __init__(self, *args: Any, track_choices: list[tuple[str, str]], **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.fields["track"].choices = track_choices
+        self.fields["race_type"].initial = RaceType.OBJECT_AVOIDANCE
 
 
 def race_initial(race_type: str, stored: dict[str, Any] | None) -> dict[str, Any]:

@@ -7,12 +7,16 @@ The tracks themselves live in ``racing`` (built-in files) and in RACECRAFT_TRACK
 from __future__ import annotations
 
 import hashlib
+import json
 import threading
+from collections import OrderedDict
 from dataclasses import dataclass
+from typing import Any
 
-from racing.preview import render_preview_png
+from racing.preview import render_preview_png, render_race_preview_png
+from racing.track import TrackError
 from racing.tracks import TrackInfo, UnknownTrackError
-from training.services import track_catalog
+from training.services import race_config, track_catalog
 
 __all__ = [
     "PREVIEW_WIDTH_PX",
@@ -20,6 +24,7 @@ __all__ = [
     "TrackRow",
     "UnknownTrackError",
     "preview_cache_clear",
+    "race_preview",
     "track_catalog",
     "track_preview",
     "track_rows",
@@ -49,6 +54,9 @@ class TrackPreview:
 
 _preview_cache: dict[str, TrackPreview] = {}
 _preview_lock = threading.Lock()
+_race_cache: OrderedDict[str, TrackPreview] = OrderedDict()
+RACE_CACHE_SIZE = 64
+"""Race layouts kept rendered (the last asked for): a wizard's changes ask for a few each."""
 
 
 def track_rows() -> list[TrackRow]:
@@ -79,7 +87,38 @@ def track_preview(track_id: str) -> TrackPreview:
     return cached
 
 
+def race_preview(
+    track_id: str, direction: str, race_type: str, race: dict[str, Any], seed: int = 0
+) -> TrackPreview:
+    """The preview of ``track_id`` driven in ``direction`` with the objects of a race
+    (``race``: :func:`training.services.race_settings`'s stored form) where an episode starts
+    them; a random placement is the draw of ``seed``.
+
+    Raises UnknownTrackError, and ValueError (in words) when the direction is not the track's
+    to choose or the objects do not fit on it.
+    """
+    key = json.dumps([track_id, direction, race_type, race, seed], sort_keys=True)
+    with _preview_lock:
+        cached = _race_cache.get(key)
+        if cached is not None:
+            _race_cache.move_to_end(key)
+            return cached
+    track = track_catalog().load(track_id)
+    try:
+        track = track.in_direction(direction)
+    except TrackError as exc:
+        raise ValueError(str(exc)) from None
+    png = render_race_preview_png(track, race_config(race_type, race), PREVIEW_WIDTH_PX, seed)
+    preview = TrackPreview(png=png, etag=hashlib.sha256(png).hexdigest()[:32])
+    with _preview_lock:
+        _race_cache[key] = preview
+        while len(_race_cache) > RACE_CACHE_SIZE:
+            _race_cache.popitem(last=False)
+    return preview
+
+
 def preview_cache_clear() -> None:
     """Forget every rendered preview (e.g. after a track was imported again)."""
     with _preview_lock:
         _preview_cache.clear()
+        _race_cache.clear()

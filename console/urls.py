@@ -1,6 +1,7 @@
 """URL map of the console.
 
 /                          home                 /tracks/, /tracks/<id>.png   track gallery
+/tracks/<id>/race.png      a race's objects on the track (query: the race settings, direction)
 /accounts/signup|login|logout/                  /admin/                      Django admin
 /models/                   your models          /models/new/, /models/import/
 /models/<id>/              a model's page       .../clone/, .../delete/, .../train/, .../reward/
@@ -41,6 +42,7 @@ urlpatterns = [
     path("", pages.home, name="home"),
     path("tracks/", pages.track_gallery, name="track-gallery"),
     path("tracks/<track:track_id>.png", pages.track_preview, name="track-preview"),
+    path("tracks/<track:track_id>/race.png", pages.track_race_preview, name="track-race-preview"),
     path("tracks/import/", pages.track_upload, name="track-upload"),
     # accounts
     path("accounts/signup/", accounts.signup, name="signup"),

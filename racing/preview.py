@@ -4,6 +4,10 @@ The picture is the same ground texture the cameras see (:func:`racing.texture.re
 rendered a little finer than needed and shrunk with area averaging so thin lines stay smooth,
 then cropped to the track with a small margin. On top of it: a chequered start line across the
 road at waypoint 0 and an arrow pointing the driving direction.
+
+A race's preview (:func:`render_race_preview_png`) adds the objects of an episode's start, as
+the simulator places them: boxes at their fixed (or one random draw of their) places, bot cars
+at their starting places, each drawn to scale in the colours the cameras see them.
 """
 
 from __future__ import annotations
@@ -13,6 +17,9 @@ import math
 import cv2
 import numpy as np
 
+from racing.drawing import objects_colours
+from racing.objects import BotFleet, Lanes, RaceObject, place_boxes
+from racing.race import RaceConfig
 from racing.texture import render_ground
 from racing.track import Track
 
@@ -35,6 +42,9 @@ CHEQUER_SQUARES = 8
 ARROW_LENGTH_M = 0.7
 """Nominal arrow length along the centre line, metres (shorter on tiny tracks)."""
 
+OUTLINE_RGB = (25, 25, 25)
+"""The dark edge round each object, so that a box stands out on the road."""
+
 _SHIFT = 4  # fixed-point bits for sub-pixel drawing
 _SCALE = 1 << _SHIFT
 
@@ -47,15 +57,40 @@ def render_preview_png(track: Track, width_px: int = 480) -> bytes:
     ``width_px`` (same bytes every call). Raises ``ValueError`` for a width outside
     ``MIN_WIDTH_PX..MAX_WIDTH_PX``.
     """
-    image = render_preview(track, width_px)
+    return _png(render_preview(track, width_px))
+
+
+def race_objects(track: Track, config: RaceConfig, seed: int = 0) -> tuple[RaceObject, ...]:
+    """The boxes or bot cars of an episode's start on ``track`` (in its driving direction), as
+    the simulator places them; random placements are the draw of ``seed``. Raises
+    ``ValueError`` when they do not fit on the track."""
+    rng = np.random.default_rng(seed)
+    if config.has_boxes:
+        return place_boxes(track, Lanes(track), config, rng)
+    if config.has_bots:
+        return BotFleet(track, Lanes(track), config, rng).objects
+    return ()
+
+
+def render_race_preview_png(
+    track: Track, config: RaceConfig, width_px: int = 480, seed: int = 0
+) -> bytes:
+    """:func:`render_preview_png` with the race's objects (:func:`race_objects`) on it."""
+    return _png(render_preview(track, width_px, objects=race_objects(track, config, seed)))
+
+
+def _png(image: np.ndarray) -> bytes:
     ok, buffer = cv2.imencode(".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     if not ok:  # pragma: no cover - cv2 only fails on empty or odd images
         raise RuntimeError("PNG encoding failed")
     return buffer.tobytes()
 
 
-def render_preview(track: Track, width_px: int = 480) -> np.ndarray:
-    """The preview as an ``(H, width_px, 3)`` uint8 RGB array (see :func:`render_preview_png`)."""
+def render_preview(
+    track: Track, width_px: int = 480, *, objects: tuple[RaceObject, ...] = ()
+) -> np.ndarray:
+    """The preview as an ``(H, width_px, 3)`` uint8 RGB array (see :func:`render_preview_png`),
+    with ``objects`` drawn on it from above."""
     if not MIN_WIDTH_PX <= int(width_px) <= MAX_WIDTH_PX:
         raise ValueError(f"width_px must be {MIN_WIDTH_PX}..{MAX_WIDTH_PX}, not {width_px}")
     width_px = int(width_px)
@@ -76,7 +111,23 @@ def render_preview(track: Track, width_px: int = 480) -> np.ndarray:
 
     _draw_start_line(image, track, to_px)
     _draw_arrow(image, track, to_px, px_per_m=width_px / span_x)
+    _draw_objects(image, objects, to_px, px_per_m=width_px / span_x)
     return image
+
+
+def _draw_objects(image: np.ndarray, objects, to_px, *, px_per_m: float) -> None:
+    """Each object's footprint, to scale, filled with its camera colour and outlined."""
+    edge = max(1, int(round(0.015 * px_per_m)))
+    for obj, colour in zip(objects, objects_colours(objects), strict=True):
+        c, s = math.cos(obj.heading), math.sin(obj.heading)
+        hl, hw = obj.length / 2, obj.width / 2
+        corners = np.array(
+            [(obj.x + a * c - b * s, obj.y + a * s + b * c)
+             for a, b in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))]
+        )  # fmt: skip
+        pts = to_px(corners)
+        cv2.fillConvexPoly(image, pts, colour, cv2.LINE_AA, _SHIFT)
+        cv2.polylines(image, [pts], True, OUTLINE_RGB, edge, cv2.LINE_AA, _SHIFT)
 
 
 def _draw_start_line(image: np.ndarray, track: Track, to_px) -> None:

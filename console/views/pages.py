@@ -12,6 +12,7 @@ from django.views.decorators.http import require_POST, require_safe
 
 from console import tracks
 from console.forms import TrackUploadForm, add_service_error
+from console.race_form import RaceLayoutForm, TrackLayoutForm
 from training import services
 
 
@@ -27,8 +28,51 @@ def track_gallery(request: HttpRequest) -> HttpResponse:
 def _gallery(
     request: HttpRequest, form: TrackUploadForm, status: int = 200, **extra
 ) -> HttpResponse:  # noqa: E501
-    context = {"nav": "tracks", "rows": tracks.track_rows(), "upload_form": form, **extra}
+    rows = tracks.track_rows()
+    choices = [(r.info.id, r.info.name) for r in rows]
+    layout_src = ""
+    if "race_type" in request.GET:  # the race layout form was sent (GET: a page to link to)
+        layout = TrackLayoutForm(request.GET, track_choices=choices)
+        try:
+            settings = layout.layout()
+        except services.ServiceError as exc:
+            if layout.is_valid():  # the services refused the race (the form has its own)
+                add_service_error(layout, exc.message, exc.field)
+        else:
+            track_id = layout.cleaned_data["track"]
+            try:
+                tracks.race_preview(track_id, *settings)
+            except (ValueError, tracks.UnknownTrackError) as exc:
+                add_service_error(layout, str(exc), None)
+            else:
+                query = request.GET.copy()
+                query.pop("track", None)
+                layout_src = f"/tracks/{track_id}/race.png?{query.urlencode()}"
+        if not layout_src:
+            status = 400
+        extra.setdefault("jump", "layout")
+    else:
+        layout = TrackLayoutForm(track_choices=choices)
+    context = {"nav": "tracks", "rows": rows, "upload_form": form, "layout_form": layout,
+               "layout_src": layout_src, **extra}  # fmt: skip
     return render(request, "tracks.html", context, status=status)
+
+
+@require_safe
+def track_race_preview(request: HttpRequest, track_id: str) -> HttpResponse:
+    """The track with a race's objects where an episode starts them (the query: the race
+    settings of the wizard, ``direction``, ``seed``): a PNG, or 400 saying what is wrong."""
+    try:
+        preview = tracks.race_preview(track_id, *RaceLayoutForm(request.GET).layout())
+    except tracks.UnknownTrackError:
+        raise Http404(f"No track {track_id!r}") from None
+    except (services.ServiceError, ValueError) as exc:
+        message = exc.sentence if isinstance(exc, services.ServiceError) else str(exc)
+        return HttpResponse(message, status=400, content_type="text/plain; charset=utf-8")
+    response = HttpResponse(preview.png, content_type="image/png")
+    response["ETag"] = f'"{preview.etag}"'
+    patch_cache_control(response, public=True, max_age=3600)
+    return get_conditional_response(request, etag=response["ETag"], response=response)
 
 
 @require_POST

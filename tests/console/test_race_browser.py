@@ -70,3 +70,40 @@ def test_the_settings_follow_the_race_type(browser, daphne, racer_model):
     expect(form.locator("[data-race=HEAD_TO_BOT]")).to_be_hidden()
     assert errors == []
     context.close()
+
+
+def test_the_tracks_page_previews_a_race_layout(browser, daphne):
+    from playwright.sync_api import expect
+
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    context.set_default_timeout(30_000)
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(f"{daphne.url}/tracks/")
+    form = page.locator("#layout-form")
+    form.locator("select[name=track]").select_option("racecraft_oval")
+    expect(form.locator("[data-race=OBJECT_AVOIDANCE]")).to_be_visible()  # the page's default
+    form.locator("select[name=race_type]").select_option("HEAD_TO_BOT")
+    expect(form.locator("[data-race=HEAD_TO_BOT]")).to_be_visible()
+    expect(form.locator("[data-race=OBJECT_AVOIDANCE]")).to_be_hidden()
+    form.locator("input[name=number_of_bots]").fill("4")
+    page.click("#layout-preview-button")
+    image = page.locator("#layout-preview img")
+    expect(image).to_be_visible()
+    width = 0
+    for _ in range(300):  # until the picture has loaded (no string eval under the page's CSP)
+        width = image.evaluate("img => img.complete ? img.naturalWidth : -1")
+        if width >= 0:
+            break
+        page.wait_for_timeout(100)
+    assert width == 480
+    expect(form.locator("input[name=number_of_bots]")).to_have_value("4")  # kept
+
+    form.locator("select[name=race_type]").select_option("OBJECT_AVOIDANCE")
+    form.locator("input[name=object_positions]").fill("0.3,1;0.35,-1")
+    page.click("#layout-preview-button")
+    expect(page.locator("#field-object_positions .field-error")).to_contain_text("0.13")
+    expect(page.locator("#layout-preview")).to_have_count(0)
+    assert errors == []
+    context.close()

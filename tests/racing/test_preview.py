@@ -7,7 +7,16 @@ import numpy as np
 import pytest
 from shared_tracks import SHARED_TRACKS
 
-from racing.preview import ARROW_RGB, MARGIN_M, render_preview, render_preview_png
+from racing.drawing import BOT_RGB, BOX_RGB
+from racing.preview import (
+    ARROW_RGB,
+    MARGIN_M,
+    race_objects,
+    render_preview,
+    render_preview_png,
+    render_race_preview_png,
+)
+from racing.race import RaceConfig
 from racing.track import Track
 from racing.tracks import TrackCatalog
 
@@ -110,3 +119,56 @@ def test_open_route_renders() -> None:
 def test_unreasonable_width_is_refused(summit: Track, width_px: int) -> None:
     with pytest.raises(ValueError, match="width_px"):
         render_preview_png(summit, width_px=width_px)
+
+
+# ------------------------------------------------------------------ a race's objects
+def colour_blobs(image: np.ndarray, rgb: tuple[int, int, int]) -> list[tuple[float, float]]:
+    """Centres (column, row) of the connected patches of pixels close to ``rgb``."""
+    mask = (np.abs(image.astype(int) - np.array(rgb)).sum(axis=2) < 30).astype(np.uint8)
+    count, _, stats, centres = cv2.connectedComponentsWithStats(mask)
+    return [tuple(c) for c, s in zip(centres[1:], stats[1:], strict=True) if s[4] >= 4]
+
+
+@pytest.fixture(scope="module")
+def oval() -> Track:
+    return TrackCatalog().load("racecraft_oval")
+
+
+def test_a_race_preview_draws_each_box_where_the_simulator_puts_it(oval: Track) -> None:
+    config = RaceConfig(race_type="OBJECT_AVOIDANCE", object_positions=((0.25, 1), (0.6, -1)))
+    boxes = race_objects(oval, config)
+    image = decode(render_race_preview_png(oval, config, width_px=480))
+    blobs = colour_blobs(image, BOX_RGB)
+    assert len(blobs) == len(boxes) == 2
+    # The map spans the track's bounds plus the margin, north up: world x to the right,
+    # world y upwards (pixel rows downwards).
+    xmin, ymin, xmax, ymax = oval.bounds()
+    px_per_m = 480 / (xmax - xmin + 2 * MARGIN_M)
+    expected = sorted(
+        ((b.x - xmin + MARGIN_M) * px_per_m, (ymax + MARGIN_M - b.y) * px_per_m) for b in boxes
+    )
+    for (col, row), (want_col, want_row) in zip(sorted(blobs), expected, strict=True):
+        assert abs(col - want_col) < 3 and abs(row - want_row) < 3
+    assert not colour_blobs(render_preview(oval, 480), BOX_RGB)  # the plain map has none
+
+
+def test_a_head_to_bot_preview_shows_every_bot_car_and_a_time_trial_none(oval: Track) -> None:
+    bots = RaceConfig(race_type="HEAD_TO_BOT", number_of_bots=3)
+    assert len(colour_blobs(decode(render_race_preview_png(oval, bots)), BOT_RGB)) == 3
+    assert render_race_preview_png(oval, RaceConfig()) == render_preview_png(oval)
+
+
+def test_random_boxes_show_the_draw_of_the_seed(oval: Track) -> None:
+    config = RaceConfig(race_type="OBJECT_AVOIDANCE", number_of_objects=3, randomize_objects=True)
+    assert render_race_preview_png(oval, config, seed=1) == render_race_preview_png(
+        oval, config, seed=1
+    )
+    assert render_race_preview_png(oval, config, seed=1) != render_race_preview_png(
+        oval, config, seed=2
+    )
+
+
+def test_objects_that_do_not_fit_are_refused_in_words(oval: Track) -> None:
+    config = RaceConfig(race_type="OBJECT_AVOIDANCE", number_of_objects=6, min_object_gap_m=9.0)
+    with pytest.raises(ValueError, match="do not fit"):
+        render_race_preview_png(oval, config)
