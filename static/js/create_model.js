@@ -54,6 +54,52 @@
   sync();
   renumber();
 
+  // The race's layout on the chosen track, drawn by the server as the simulator places it
+  // (/tracks/<id>/race.png); a setting it refuses is said in words under the picture.
+  const layout = document.getElementById("race-layout");
+  const layoutImg = document.getElementById("race-layout-img");
+  const layoutNote = document.getElementById("race-layout-note");
+  const LAYOUT_FIELDS = ["direction", "number_of_objects", "object_placement", "object_positions",
+    "number_of_bots", "bot_speed", "lane_change_min_s", "lane_change_max_s"];
+  let layoutTimer = null;
+  let layoutUrl = "";
+  function layoutSource() {
+    const race = checked("race_type");
+    const track = checked("track_id");
+    if (!track || (race !== "OBJECT_AVOIDANCE" && race !== "HEAD_TO_BOT")) return "";
+    const query = new URLSearchParams({ race_type: race });
+    LAYOUT_FIELDS.forEach((name) => {
+      const input = form.querySelector(`[name=${name}]`);
+      if (input && input.value !== "") query.set(name, input.value);
+    });
+    return `/tracks/${encodeURIComponent(track)}/race.png?${query}`;
+  }
+  function showLayout() {
+    const url = layoutSource();
+    layout.hidden = !url;
+    if (!url || url === layoutUrl) return;
+    layoutUrl = url;
+    layoutImg.hidden = false;
+    layoutNote.textContent = "Where an episode starts the objects on the chosen track.";
+    layoutImg.src = url;
+  }
+  layoutImg.addEventListener("error", () => {
+    const url = layoutUrl;
+    layoutImg.hidden = true;
+    fetch(url).then((r) => r.text()).then((text) => {
+      if (url === layoutUrl) layoutNote.textContent = `No preview: ${text.slice(0, 300)}`;
+    }).catch(() => {
+      if (url === layoutUrl) layoutNote.textContent = "No preview: the console did not answer.";
+    });
+  });
+  const laterLayout = () => {
+    clearTimeout(layoutTimer);
+    layoutTimer = setTimeout(showLayout, 300);
+  };
+  form.addEventListener("change", laterLayout);
+  form.addEventListener("input", laterLayout);
+  showLayout();
+
   // The generator posts the form back; land on the action space again.
   // A refused form lands on its first error (the reward editor scrolls itself into view).
   const firstError = form.querySelector(".has-error, .form-error");

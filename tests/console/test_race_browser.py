@@ -5,6 +5,8 @@ console on the test database."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 from django.contrib.auth import get_user_model
 
@@ -31,6 +33,18 @@ def racer_model(store_dir) -> RacingModel:
     return model
 
 
+def loaded_width(page, image) -> int:
+    """The picture's natural width once it has loaded (-1: still loading; polled from Python:
+    the page's CSP allows no string evaluation)."""
+    width = -1
+    for _ in range(300):
+        width = image.evaluate("img => img.complete && img.naturalWidth ? img.naturalWidth : -1")
+        if width >= 0:
+            break
+        page.wait_for_timeout(100)
+    return width
+
+
 def test_the_settings_follow_the_race_type(browser, daphne, racer_model):
     from playwright.sync_api import expect
 
@@ -49,9 +63,20 @@ def test_the_settings_follow_the_race_type(browser, daphne, racer_model):
     boxes, bots = page.locator("#race-settings-boxes"), page.locator("#race-settings-bots")
     expect(boxes).to_be_hidden()  # a time trial has no settings
     expect(bots).to_be_hidden()
+    expect(page.locator("#race-layout")).to_be_hidden()
+    page.check("input[name=track_id][value=racecraft_oval]")
     page.check("input[name=race_type][value=OBJECT_AVOIDANCE]")
     expect(boxes).to_be_visible()
     expect(bots).to_be_hidden()
+    # The layout of the boxes on the chosen track, and a refused setting in words.
+    layout = page.locator("#race-layout-img")
+    expect(layout).to_have_attribute("src", re.compile(r"^/tracks/racecraft_oval/race\.png\?"))
+    assert loaded_width(page, layout) == 480
+    page.fill("#id_object_positions", "0.5")
+    expect(page.locator("#race-layout-note")).to_contain_text("No preview: Box 1: write each")
+    page.fill("#id_object_positions", "0.3,1;0.6,-1")
+    expect(layout).to_have_attribute("src", re.compile("object_positions=0.3%2C1%3B0.6%2C-1"))
+    assert loaded_width(page, layout) == 480
     page.check("input[name=race_type][value=HEAD_TO_BOT]")
     expect(bots).to_be_visible()
     expect(page.locator("#id_bot_speed")).to_have_value("0.5")
@@ -91,13 +116,7 @@ def test_the_tracks_page_previews_a_race_layout(browser, daphne):
     page.click("#layout-preview-button")
     image = page.locator("#layout-preview img")
     expect(image).to_be_visible()
-    width = 0
-    for _ in range(300):  # until the picture has loaded (no string eval under the page's CSP)
-        width = image.evaluate("img => img.complete ? img.naturalWidth : -1")
-        if width >= 0:
-            break
-        page.wait_for_timeout(100)
-    assert width == 480
+    assert loaded_width(page, image) == 480
     expect(form.locator("input[name=number_of_bots]")).to_have_value("4")  # kept
 
     form.locator("select[name=race_type]").select_option("OBJECT_AVOIDANCE")
