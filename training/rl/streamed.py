@@ -144,6 +144,13 @@ def _episode_arrays(model, chunks: list[Chunk]) -> dict[str, np.ndarray]:
     }  # fmt: skip
 
 
+def worker_count(workers: int, spec) -> int:
+    """Simulation workers a run starts: the backend's, and at least one per track of a
+    multi-track run (each worker drives its own track, as DeepRacer-for-Cloud's do), so that
+    no track is left undriven."""
+    return max(1, int(workers), len(spec.track_list()))
+
+
 def streamed(config: TrainingConfig) -> bool:
     """Whether ``config`` trains with simulation workers that own their episodes: PPO on a
     user's reward with a :class:`~training.rollout.backends.StreamRollouts` backend. SAC learns
@@ -196,7 +203,7 @@ class StreamedTrainingLoop:
         self.session = Session(self.backend.redis_url, self.backend.prefix, uuid.uuid4().hex)
         self.session.create()
         self.session.r.set(self.session.keys.trainer, 1, ex=30)
-        self.slots = [_Slot(i) for i in range(max(1, int(self.backend.workers)))]
+        self.slots = [_Slot(i) for i in range(worker_count(self.backend.workers, config.spec))]
         self.pending: deque[_PendingRow] = deque()
         self.counted: dict[str, list[Chunk]] = {}
         self.counted_tickets: list[str] = []  # every episode counted, by ticket, in order
@@ -541,4 +548,11 @@ def _frame(msg: dict) -> dict | None:
     return out
 
 
-__all__ = ["ALIVE_TTL_S", "StreamedTrainingLoop", "episode_advantages", "rollout_buffer", "train"]
+__all__ = [
+    "ALIVE_TTL_S",
+    "StreamedTrainingLoop",
+    "episode_advantages",
+    "rollout_buffer",
+    "train",
+    "worker_count",
+]

@@ -15,7 +15,7 @@ from training.rl.checkpoints import load_checkpoint
 from training.rl.hyperparams import parse_hyperparameters
 from training.rl.metadata import build_metadata
 from training.rl.runner import TrainingConfig, TrainingHooks
-from training.rl.streamed import episode_advantages, streamed, train
+from training.rl.streamed import episode_advantages, streamed, train, worker_count
 from training.rollout.backends import StreamRollouts
 from training.rollout.envs import EnvSpec
 
@@ -227,3 +227,35 @@ def test_the_trainer_counts_an_episode_once_and_only_whole_and_current(redis_url
         assert list(loop.counted) == ["0:0"] and loop.counted_tickets == ["0:0"]
     finally:
         loop.close()
+
+
+THREE_TRACKS = (
+    ("racecraft_oval", "native"), ("racecraft_summit", "native"),
+    ("racecraft_technical", "native"),
+)  # fmt: skip
+
+
+def test_a_multi_track_run_starts_a_worker_for_every_track():
+    one = EnvSpec(track="racecraft_oval")
+    three = EnvSpec(track="racecraft_oval", tracks=THREE_TRACKS)
+    assert worker_count(2, one) == 2 and worker_count(0, one) == 1
+    assert worker_count(2, three) == 3 and worker_count(4, three) == 4
+
+
+class CollectUntilEveryTrack(Collect):
+    """Trains on until an episode of every track came in (10 iterations at most): which
+    worker claims which episode depends on how fast each one started."""
+
+    def should_stop(self) -> bool:
+        driven = {e["track"] for e in self.episodes}
+        return len(self.results) >= 10 or driven >= {t for t, _ in THREE_TRACKS}
+
+
+@pytest.mark.slow
+def test_a_streamed_run_on_more_tracks_than_workers_drives_every_track(redis_url, settings):
+    spec = EnvSpec(track="racecraft_oval", tracks=THREE_TRACKS, action_space=DISCRETE)
+    config = _config(redis_url, settings.REDIS_PREFIX, spec=spec, eval_episodes=1)
+    assert config.rollouts.workers == 2  # fewer than the tracks
+    hooks = CollectUntilEveryTrack(iterations=1)
+    train(config, hooks)
+    assert {e["track"] for e in hooks.episodes} == {t for t, _ in THREE_TRACKS}
