@@ -3,28 +3,16 @@ watched run, count them (spare-lap frames apart) and stop after the iterations a
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
+from tests.bench.loader import load_bench
 from training.rl.runner import EvaluationOutcome, IterationResult
-
-PATH = Path(__file__).resolve().parents[2] / "bench" / "bench_spectator.py"
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_spectator_under_test", PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(PATH.parent))  # the bench put its folder first, as a script does
-    yield module
-    del sys.modules[spec.name]
+    with load_bench("bench_spectator") as module:
+        yield module
 
 
 def result(iteration: int, steps: int, update_s: float) -> IterationResult:

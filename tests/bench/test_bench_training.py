@@ -3,23 +3,15 @@ the medians (a missed goal is never averaged away), the laps and the last line."
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
-PATH = Path(__file__).resolve().parents[2] / "bench" / "bench_training.py"
+from tests.bench.loader import load_bench
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_training_under_test", PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    yield module
-    del sys.modules[spec.name]
+    with load_bench("bench_training") as module:
+        yield module
 
 
 def test_the_streak_needs_three_clean_evaluations_in_a_row(bench) -> None:

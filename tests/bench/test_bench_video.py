@@ -3,27 +3,15 @@ included), encodes per frame and the last line."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
-PATH = Path(__file__).resolve().parents[2] / "bench" / "bench_video.py"
+from tests.bench.loader import load_bench
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_video_under_test", PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    sys.path.insert(0, str(PATH.parent))  # its sibling bench_load, as when run as a script
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(PATH.parent))
-    yield module
-    del sys.modules[spec.name]
+    with load_bench("bench_video") as module:
+        yield module
 
 
 def frames(times: list[float], phase: str = "evaluation") -> list[tuple[float, dict]]:

@@ -33,6 +33,18 @@ def racer_model(store_dir) -> RacingModel:
     return model
 
 
+@pytest.fixture
+def browser_page(browser):
+    """A desktop-sized page, the script errors it raised, closed after the test."""
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    context.set_default_timeout(30_000)
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    yield page, errors
+    context.close()
+
+
 def loaded_width(page, image) -> int:
     """The picture's natural width once it has loaded (-1: still loading; polled from Python:
     the page's CSP allows no string evaluation)."""
@@ -45,14 +57,10 @@ def loaded_width(page, image) -> int:
     return width
 
 
-def test_the_settings_follow_the_race_type(browser, daphne, racer_model):
+def test_the_settings_follow_the_race_type(browser_page, daphne, racer_model):
     from playwright.sync_api import expect
 
-    context = browser.new_context(viewport={"width": 1280, "height": 900})
-    context.set_default_timeout(30_000)
-    page = context.new_page()
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
+    page, errors = browser_page
     page.goto(f"{daphne.url}/accounts/login/")
     page.fill("#id_username", "racer")
     page.fill("#id_password", PASSWORD)
@@ -94,17 +102,12 @@ def test_the_settings_follow_the_race_type(browser, daphne, racer_model):
     form.locator("select[name=race_type]").select_option("")
     expect(form.locator("[data-race=HEAD_TO_BOT]")).to_be_hidden()
     assert errors == []
-    context.close()
 
 
-def test_the_tracks_page_previews_a_race_layout(browser, daphne):
+def test_the_tracks_page_previews_a_race_layout(browser_page, daphne):
     from playwright.sync_api import expect
 
-    context = browser.new_context(viewport={"width": 1280, "height": 900})
-    context.set_default_timeout(30_000)
-    page = context.new_page()
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
+    page, errors = browser_page
     page.goto(f"{daphne.url}/tracks/")
     form = page.locator("#layout-form")
     form.locator("select[name=track]").select_option("racecraft_oval")
@@ -125,4 +128,3 @@ def test_the_tracks_page_previews_a_race_layout(browser, daphne):
     expect(page.locator("#field-object_positions .field-error")).to_contain_text("0.13")
     expect(page.locator("#layout-preview")).to_have_count(0)
     assert errors == []
-    context.close()
