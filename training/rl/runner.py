@@ -376,7 +376,6 @@ class TrainingLoop:
         best_progress, best_iteration = -1.0, None
         if self.config.best_score is not None:
             best_progress = float(self.config.best_score)
-        iteration = 0
         total_steps = 0
         try:
             while not self.stop_reason():
@@ -392,13 +391,12 @@ class TrainingLoop:
                     break  # an interrupted rollout was not learned from
                 evaluation = self.evaluate()
                 t2 = time.monotonic()
-                iteration += 1
-                self._iteration = iteration
+                self._iteration += 1
                 total_steps = self.model.num_timesteps
                 rewards = self.episode_rewards[first_episode:]
                 progress = self.episode_progress[first_episode:]
                 result = IterationResult(
-                    iteration=iteration,
+                    iteration=self._iteration,
                     episodes=len(rewards),
                     steps=total_steps - steps_before,
                     total_steps=total_steps,
@@ -411,15 +409,15 @@ class TrainingLoop:
                     eval_s=t2 - t1,
                 )
                 if evaluation.mean_progress > best_progress:
-                    best_progress, best_iteration = evaluation.mean_progress, iteration
+                    best_progress, best_iteration = evaluation.mean_progress, self._iteration
                     result.best = True
                 rows, self.rows = self.rows, []
-                self.spectator.start(iteration)  # while the iteration is stored and logged
+                self.spectator.start(self._iteration)  # while the iteration is stored and logged
                 self.hooks.on_iteration(result, self.checkpoint(), rows)
         finally:
             self.close()
         return TrainingSummary(
-            iterations=iteration,
+            iterations=self._iteration,
             total_steps=total_steps,
             best_iteration=best_iteration,
             best_eval_progress=max(best_progress, 0.0),
