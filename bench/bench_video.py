@@ -177,7 +177,7 @@ def watch_job(mode: str, args: argparse.Namespace, base: str) -> dict:
             page.wait_for_timeout(200)
         t0 = frames[0][0]
         first_frame_s = t0 - started
-        print(f"[{mode}] first frame {first_frame_s:.1f} s after the start", file=sys.stderr)
+        print(f"[{mode}] first frame {first_frame_s:.1f} s after the page opened", file=sys.stderr)
         finished_at: list[tuple[int, float]] = []  # (iteration, when its row was seen)
         seen = TrainingJob.objects.get(pk=job.pk).iterations
         if args.whole_run:
@@ -248,6 +248,7 @@ def whole_run(mode, job, page, others, browser, frames, t0, first_frame_s, args)
         page.wait_for_timeout(1000)
     page.wait_for_timeout(2000)  # the last frames in flight
     t_stop = training_end(state, time.monotonic(), time.time())
+    since_job = t0 - (t_stop - state.max_minutes * 60)  # from the worker's start of the job
     received = others.evaluate("window.viewerFrames")
     opened = sum(others.evaluate("window.viewerOpen"))
     received.append(len(frames))
@@ -260,7 +261,8 @@ def whole_run(mode, job, page, others, browser, frames, t0, first_frame_s, args)
         "iteration", "rollout_s", "update_s", "eval_s", "elapsed_s"))  # fmt: skip
     stats = video_stats(window, t0, t_stop, received=received, counts=counts)
     return {**stats, "mode": mode, "viewers_open": opened + 1, "iterations_at": [],
-            "metrics": metrics, "first_frame_s": first_frame_s}  # fmt: skip
+            "metrics": metrics, "first_frame_s": first_frame_s,
+            "first_frame_after_job_s": since_job}  # fmt: skip
 
 
 def video_stats(window: list[tuple[float, dict]], t0: float, t_stop: float, *,
@@ -327,9 +329,10 @@ def report(results: list[dict], args: argparse.Namespace) -> None:
               f"{r['max_gap_s']:>10.2f}{r['encoded']:>9}{r['sent']:>7}{spread:>26}"
               f"{r['encodes_per_frame']:>10.2f}")  # fmt: skip
     for r in results:
-        if "first_frame_s" in r:
-            print(f"\n[{r['mode']}] first frame {r['first_frame_s']:.1f} s after the job "
-                  "started")  # fmt: skip
+        if "first_frame_after_job_s" in r:
+            print(f"\n[{r['mode']}] first frame {r['first_frame_after_job_s']:.1f} s after the "
+                  f"worker started the job, {r['first_frame_s']:.1f} s after the page "
+                  "opened")  # fmt: skip
         print(f"\n[{r['mode']}] viewers connected: {r['viewers_open']}/{args.viewers}; "
               f"iterations seen at (s into the window): "
               f"{', '.join(f'{n}@{t:.0f}' for n, t in r['iterations_at']) or 'none'}")  # fmt: skip
