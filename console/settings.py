@@ -286,7 +286,9 @@ RACECRAFT_BACKGROUND_TASKS_PER_USER = envint("RACECRAFT_BACKGROUND_TASKS_PER_USE
 # Sign-up and log-in POSTs per address (log-in also per user name): django-ratelimit rates.
 RACECRAFT_LOGIN_RATE = envstr("RACECRAFT_LOGIN_RATE", "10/m")
 RACECRAFT_SIGNUP_RATE = envstr("RACECRAFT_SIGNUP_RATE", "5/h")
-for _name in ("RACECRAFT_LOGIN_RATE", "RACECRAFT_SIGNUP_RATE"):
+# Race layout pictures (/tracks/<id>/race.png, each drawn on request) per address.
+RACECRAFT_PREVIEW_RATE = envstr("RACECRAFT_PREVIEW_RATE", "300/m")
+for _name in ("RACECRAFT_LOGIN_RATE", "RACECRAFT_SIGNUP_RATE", "RACECRAFT_PREVIEW_RATE"):
     if not re.fullmatch(r"\d+/\d*[smhd]", globals()[_name]):
         raise ImproperlyConfigured(f"{_name}={globals()[_name]!r} is not a rate like 10/m")
 

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from django.conf import settings
 from django.http import HttpRequest, HttpResponse
 from django.urls import reverse
-from django_ratelimit.core import is_ratelimited
+from django_ratelimit.core import ALL, is_ratelimited
 
 TOO_MANY = "Too many attempts from your address; wait a few minutes and try again."
 
@@ -27,6 +27,17 @@ def _limited(request: HttpRequest, group: str, key: str, rate: str) -> bool:
 def login_key(group: str, request: HttpRequest) -> str:
     """The user name tried, so one account is protected from many addresses too."""
     return str(request.POST.get("username", "")).strip().lower()[:150]
+
+
+TOO_MANY_PREVIEWS = "Too many layout previews from your address; wait a minute and try again."
+
+
+def previews_limited(request: HttpRequest) -> bool:
+    """Whether this address asked for more race layout pictures than RACECRAFT_PREVIEW_RATE
+    (each one is drawn on request, so a flood would keep a web process busy)."""
+    return is_ratelimited(request, group="race-preview", key="ip",
+                          rate=settings.RACECRAFT_PREVIEW_RATE, method=ALL,
+                          increment=True)  # fmt: skip
 
 
 class ThrottleMiddleware:

@@ -10,7 +10,7 @@ from django.shortcuts import redirect, render
 from django.utils.cache import get_conditional_response, patch_cache_control
 from django.views.decorators.http import require_POST, require_safe
 
-from console import tracks
+from console import throttle, tracks
 from console.forms import TrackUploadForm, add_service_error
 from console.race_form import RaceLayoutForm, TrackLayoutForm
 from training import services
@@ -41,6 +41,8 @@ def _gallery(
         else:
             track_id = layout.cleaned_data["track"]
             try:
+                if throttle.previews_limited(request):
+                    raise ValueError(throttle.TOO_MANY_PREVIEWS)
                 tracks.race_preview(track_id, *settings)
             except (ValueError, tracks.UnknownTrackError) as exc:
                 add_service_error(layout, str(exc), None)
@@ -62,6 +64,8 @@ def _gallery(
 def track_race_preview(request: HttpRequest, track_id: str) -> HttpResponse:
     """The track with a race's objects where an episode starts them (the query: the race
     settings of the wizard, ``direction``, ``seed``): a PNG, or 400 saying what is wrong."""
+    if throttle.previews_limited(request):
+        return HttpResponse(throttle.TOO_MANY_PREVIEWS, status=429, content_type="text/plain")
     try:
         preview = tracks.race_preview(track_id, *RaceLayoutForm(request.GET).layout())
     except tracks.UnknownTrackError:

@@ -112,3 +112,20 @@ def test_objects_that_do_not_fit_the_track_are_refused_in_words() -> None:
     race = {"number_of_objects": 6, "min_object_gap_m": 9.0}
     with pytest.raises(ValueError, match="do not fit"):
         tracks.race_preview("racecraft_oval", "native", "OBJECT_AVOIDANCE", race)
+
+
+def test_an_address_asking_for_too_many_pictures_gets_a_429(client: Client, settings) -> None:
+    from tests.conftest import clear_cache
+
+    settings.RACECRAFT_PREVIEW_RATE = "2/m"
+    clear_cache()
+    try:
+        query = {"race_type": "HEAD_TO_BOT"}
+        assert [client.get(URL, query).status_code for _ in range(2)] == [200, 200]
+        refused = client.get(URL, query)
+        assert refused.status_code == 429
+        assert "Too many layout previews" in refused.content.decode()
+        page = client.get("/tracks/", {"track": "racecraft_oval", **query})
+        assert page.status_code == 400 and "Too many layout previews" in page.content.decode()
+    finally:
+        clear_cache()
