@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -10,6 +11,19 @@ ERROR_TYPES: tuple[ErrorType, ...] = ("SYNTAX_ERROR", "IMPORT_ERROR", "TEST_FAIL
 
 #: Name the user's source is compiled under: tracebacks are filtered to frames of this file.
 USER_FILENAME = "reward_function.py"
+
+
+#: An absolute path to a file of code: ours, the interpreter's or a library's.
+_CODE_PATH = re.compile(
+    r"(?<![\w.])(?:/[^\s/:'\"()<>,]+)+/([^\s/:'\"()<>,]+\.(?:py|pyc|pyi|pyx|so))\b"
+)
+
+
+def hide_paths(text: str) -> str:
+    """``text`` with each path of a code file cut to the file's name
+    (``/srv/racecraft/training/sandbox/oneshot.py:58`` -> ``oneshot.py:58``): messages say
+    what happened, not where the server keeps its code."""
+    return _CODE_PATH.sub(r"\1", text)
 
 
 @dataclass(frozen=True)
@@ -46,14 +60,18 @@ class RewardError:
         column = data.get("column")
         return cls(
             type=kind,
-            message=str(data.get("message", ""))[:2000],
+            message=hide_paths(str(data.get("message", ""))[:2000]),
             line=line if type(line) is int else None,
             column=column if type(column) is int else None,
         )
 
 
 class SandboxError(Exception):
-    """Base of everything the parent side raises about a sandboxed process."""
+    """Base of everything the parent side raises about a sandboxed process; its message never
+    holds a path of the server's code (:func:`hide_paths`)."""
+
+    def __init__(self, message: object = "", *args: object) -> None:
+        super().__init__(hide_paths(str(message)), *args)
 
 
 class SandboxStartError(SandboxError):

@@ -13,12 +13,14 @@ import sys
 import time
 import traceback
 import types
+import warnings
 from collections.abc import Callable
 from typing import Any
 
-from training.sandbox.errors import USER_FILENAME, RewardError, RewardFunctionError
+from training.sandbox.classes import GuardedType, guarded_build_class, is_metaclass
+from training.sandbox.errors import USER_FILENAME, RewardError, RewardFunctionError, hide_paths
 from training.sandbox.policy import FORBIDDEN_NAMES, attribute_refused, module_refused
-from training.sandbox.static import FUNCTION_NAME, check_source
+from training.sandbox.static import BEYOND_PYTHON, FUNCTION_NAME, check_source, too_deep
 
 MAX_REWARD = 1e5
 _monotonic_ns = time.monotonic_ns
@@ -48,7 +50,7 @@ class BoundedOutput(io.TextIOBase):
         return n
 
     def take(self) -> str:
-        text = "".join(self.parts)
+        text = hide_paths("".join(self.parts))
         if self.dropped:
             text += f"\n[... {self.dropped} more characters of output dropped]\n"
         self.parts, self.kept, self.dropped = [], 0, 0
@@ -89,7 +91,10 @@ class ModuleProxy:
 
 
 def _exposed(value: Any) -> Any:
-    """``value`` as user code may see it: modules only when allowed, and behind a proxy."""
+    """``value`` as user code may see it: modules only when allowed, and behind a proxy; a
+    metaclass (``type`` itself included) as the guarded ``type``."""
+    if is_metaclass(value):
+        return GuardedType
     if isinstance(value, types.ModuleType):
         if module_refused(value.__name__):
             raise AttributeError(f"access to module '{value.__name__}' is not allowed")
@@ -149,8 +154,9 @@ def restricted_builtins() -> dict[str, Any]:
     }
     allowed.update(
         __import__=_restricted_import,
-        __build_class__=builtins.__build_class__,
+        __build_class__=guarded_build_class,
         __name__="builtins",
+        type=GuardedType,
         getattr=_getattr,
         hasattr=_hasattr,
         setattr=_setattr,
@@ -171,7 +177,7 @@ def user_error(exc: BaseException, step: int | None, phase: str) -> RewardError:
     except Exception:  # noqa: BLE001 - a hostile traceback must not break reporting
         pass
     try:
-        detail = str(exc)[:500]
+        detail = hide_paths(str(exc)[:500])
     except BaseException:  # noqa: BLE001
         detail = "<unprintable>"
     name = type(exc).__name__ if type(exc).__module__ == "builtins" else "exception"
@@ -198,6 +204,8 @@ def load_reward_function(
     except (SyntaxError, ValueError) as exc:
         line = getattr(exc, "lineno", None)
         raise RewardFunctionError(RewardError("SYNTAX_ERROR", str(exc), line)) from None
+    except (RecursionError, MemoryError):  # the compiler's own limits on nesting
+        raise RewardFunctionError(too_deep(BEYOND_PYTHON)) from None
     module = types.ModuleType("reward_function")
     module.__file__ = USER_FILENAME
     if python_guards:
@@ -288,7 +296,24 @@ class RewardCallable:
         return result
 
 
+def show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object = None,
+    line: str | None = None,
+) -> None:
+    """A warning as the user needs it: ``reward_function.py:3: RuntimeWarning: ...`` for one
+    in their code, the category and message alone for one raised in a library or in ours
+    (no server paths, no source lines of our code)."""
+    where = f"{USER_FILENAME}:{lineno}: " if filename == USER_FILENAME else ""
+    sys.stderr.write(f"{where}{category.__name__}: {hide_paths(str(message))}\n")
+
+
 def install_output_capture(limit: int) -> BoundedOutput:
+    """Send print() and warnings to a :class:`BoundedOutput` of ``limit`` characters."""
     sink = BoundedOutput(limit)
     sys.stdout = sys.stderr = sink  # type: ignore[assignment]
+    warnings.showwarning = show_warning
     return sink

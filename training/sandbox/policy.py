@@ -109,6 +109,29 @@ ATTRIBUTE_FUNCTIONS: frozenset[str] = frozenset({"getattr", "setattr", "delattr"
 #: Dunder names a reward function may read as plain names.
 ALLOWED_DUNDER_NAMES: frozenset[str] = frozenset({"__name__", "__doc__", "__file__"})
 
+#: Special methods a reward function's classes may define: construction, printing,
+#: comparisons, arithmetic, the container, iterator, call and context protocols. The others
+#: change how Python itself looks things up (``__getattr__``, ``__instancecheck__``,
+#: ``__init_subclass__``, ``__set_name__``, ``__class_getitem__``, ``__match_args__``...): with
+#: a ``match`` class pattern they read any attribute of any object, so they are refused.
+ALLOWED_DUNDER_METHODS: frozenset[str] = frozenset(
+    {
+        "__init__", "__repr__", "__str__", "__format__", "__hash__", "__bool__", "__call__",
+        "__eq__", "__ne__", "__lt__", "__le__", "__gt__", "__ge__",
+        "__len__", "__getitem__", "__setitem__", "__delitem__", "__contains__",
+        "__iter__", "__next__", "__reversed__", "__enter__", "__exit__",
+        "__neg__", "__pos__", "__abs__", "__invert__", "__round__", "__trunc__", "__floor__",
+        "__ceil__", "__int__", "__float__", "__complex__", "__index__",
+        *(
+            f"__{prefix}{op}__"
+            for op in ("add", "sub", "mul", "matmul", "truediv", "floordiv", "mod", "divmod",
+                       "pow", "lshift", "rshift", "and", "xor", "or")
+            for prefix in ("", "r", "i")
+            if not (prefix == "i" and op == "divmod")
+        ),
+    }
+)  # fmt: skip
+
 #: Star imports are refused except from these (numpy's namespace holds load/save/...).
 STAR_IMPORT_MODULES: frozenset[str] = frozenset({"math", "random"})
 

@@ -14,6 +14,7 @@ from collections.abc import Iterator
 
 from training.sandbox.errors import USER_FILENAME, RewardError
 from training.sandbox.policy import (
+    ALLOWED_DUNDER_METHODS,
     ALLOWED_DUNDER_NAMES,
     ALLOWED_MODULES,
     ATTRIBUTE_FUNCTIONS,
@@ -27,14 +28,46 @@ from training.sandbox.policy import (
 
 #: Maximum source length in characters [DeepRacer-on-AWS RewardFunctionCode].
 MAX_SOURCE_CHARS = 140_000
+#: The one message for a source over :data:`MAX_SOURCE_CHARS`, wherever it is refused (the
+#: Validate button, the command line, saving, an imported archive: ``name: <message>``).
+SOURCE_TOO_LONG = (
+    f"longer than {MAX_SOURCE_CHARS:,} characters, the most a reward function may have"
+)
+#: Levels of nested blocks and expressions the check walks. Far more than a reward needs (a
+#: 500-branch ``elif`` table is about 500 deep) and well below where Python's own compiler
+#: gives up (about 3,000 at the default recursion limit), so what passes here compiles.
+MAX_NESTING = 1_000
+#: Levels of nested format specs read (``"{:{:...}}"``); ``str.format`` evaluates two and
+#: raises "Max string recursion exceeded" below that, so deeper fields are never read.
+MAX_FORMAT_NESTING = 4
+TOO_DEEP = "the reward function is nested too deeply to check"
 FUNCTION_NAME = "reward_function"
+
+
+def source_too_long(source: str) -> RewardError | None:
+    """The error for a source longer than :data:`MAX_SOURCE_CHARS`, or None."""
+    if len(source) > MAX_SOURCE_CHARS:
+        return RewardError("SYNTAX_ERROR", SOURCE_TOO_LONG)
+    return None
+
+
+def too_deep(detail: str, line: int | None = None, column: int | None = None) -> RewardError:
+    """``the reward function is nested too deeply to check: <detail>``, at its place when
+    known."""
+    return RewardError("SYNTAX_ERROR", f"{TOO_DEEP}: {detail}", line, column)
+
+
+#: What Python's parser or compiler says of a source nested past its limits.
+BEYOND_PYTHON = (
+    "its blocks or expressions nest deeper than Python can parse; split long chains "
+    "(a+b+c+..., a.b.c..., nested brackets) into steps with names"
+)
 
 
 def parse_source(source: str) -> tuple[ast.Module | None, list[RewardError]]:
     """Parse ``source``; return the tree, or None and one SYNTAX_ERROR."""
-    if len(source) > MAX_SOURCE_CHARS:
-        msg = f"the source has {len(source):,} characters; at most {MAX_SOURCE_CHARS:,} allowed"
-        return None, [RewardError("SYNTAX_ERROR", msg)]
+    if (long := source_too_long(source)) is not None:
+        return None, [long]
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -42,7 +75,9 @@ def parse_source(source: str) -> tuple[ast.Module | None, list[RewardError]]:
     except SyntaxError as exc:
         column = exc.offset if exc.offset and exc.offset > 0 else None
         return None, [RewardError("SYNTAX_ERROR", f"{exc.msg}", exc.lineno, column)]
-    except (ValueError, RecursionError, MemoryError) as exc:
+    except (RecursionError, MemoryError):  # the parser's own stack: nesting, not memory
+        return None, [too_deep(BEYOND_PYTHON)]
+    except ValueError as exc:
         return None, [RewardError("SYNTAX_ERROR", f"the source cannot be parsed: {exc}")]
     return tree, []
 
@@ -56,25 +91,55 @@ def _at(node: ast.AST, kind: str, message: str) -> RewardError:
 
 def format_attributes(template: str) -> Iterator[str]:
     """Attribute names a ``str.format`` template reads (``"{0.__class__}"`` -> ``__class__``),
-    nested format specs included; nothing for text that is not a valid template."""
-    try:
-        parsed = list(string.Formatter().parse(template))
-    except ValueError:
-        return
-    for _, field, spec, _ in parsed:
-        if field:
-            try:
-                _, rest = formatter_field_name_split(field)
-                yield from (str(key) for is_attr, key in rest if is_attr)
-            except ValueError:
-                pass
-        if spec:
-            yield from format_attributes(spec)
+    nested format specs included (down to :data:`MAX_FORMAT_NESTING` levels); nothing for
+    text that is not a valid template."""
+    todo = [(template, 0)]
+    while todo:
+        text, level = todo.pop()
+        try:
+            parsed = list(string.Formatter().parse(text))
+        except ValueError:
+            continue
+        for _, field, spec, _ in parsed:
+            if field:
+                try:
+                    _, rest = formatter_field_name_split(field)
+                    yield from (str(key) for is_attr, key in rest if is_attr)
+                except ValueError:
+                    pass
+            if spec and level < MAX_FORMAT_NESTING:
+                todo.append((spec, level + 1))
 
 
 def _literal(node: ast.AST) -> bool:
     """A string literal (``node.value`` is then a str)."""
     return isinstance(node, ast.Constant) and isinstance(node.value, str)
+
+
+def _is_type(node: ast.AST) -> bool:
+    return isinstance(node, ast.Name) and node.id == "type"
+
+
+def _starred(args: list[ast.expr]) -> bool:
+    return any(isinstance(a, ast.Starred) for a in args)
+
+
+NO_METACLASS = (
+    "a class may not derive from 'type': metaclasses are not allowed in a reward function"
+)
+NO_TYPE_CALL = (
+    "type() with three arguments (a class made at run time) is not allowed; "
+    "type(x) gives the type of x, and a class statement makes a class"
+)
+
+
+def special_method_refused(name: str) -> str:
+    """The message for defining special method ``name`` outside the allowed ones."""
+    return (
+        f"defining '{name}' is not allowed: a reward function's classes may define only "
+        "ordinary special methods (__init__, __repr__, __eq__, __add__, __len__, __iter__, "
+        "__call__, ...), none that change how Python looks names up"
+    )
 
 
 def _refused_submodule(dotted: str) -> bool:
@@ -85,14 +150,39 @@ def _allowed_list() -> str:
     return ", ".join(sorted(ALLOWED_MODULES))
 
 
-class _Checker(ast.NodeVisitor):
+class _Checker:
     """Refused imports, names and attribute access, however spelled: ``a.b``, the getattr
     family with a literal name, ``match`` class and mapping patterns, ``str.format`` fields,
-    and refused modules reached as attributes of allowed ones (``np.lib.format``)."""
+    and refused modules reached as attributes of allowed ones (``np.lib.format``); refused
+    class machinery (metaclasses, special methods that change lookups, ``type(n, b, d)``).
+
+    The tree is walked with a stack, not recursion: a deep source gets an answer (down to
+    :data:`MAX_NESTING` levels, then :func:`too_deep` at the line), never a RecursionError.
+    ``visit_<Node>`` methods see each node before its children, as ast.NodeVisitor would.
+    """
 
     def __init__(self) -> None:
         self.errors: list[RewardError] = []
         self.modules: dict[str, str] = {}  # local name -> module it was imported as
+
+    def run(self, tree: ast.AST) -> RewardError | None:
+        """Check every node; the error that stopped the walk (too deep), or None."""
+        stack: list[tuple[ast.AST, int, int | None]] = [(tree, 0, None)]
+        while stack:
+            node, depth, line = stack.pop()
+            line = getattr(node, "lineno", line)
+            if depth > MAX_NESTING:
+                col = getattr(node, "col_offset", None)
+                where = (
+                    f"more than {MAX_NESTING:,} levels of blocks or expressions inside each other"
+                )
+                return too_deep(where, line, None if col is None else col + 1)
+            visit = getattr(self, "visit_" + type(node).__name__, None)
+            if visit is not None:
+                visit(node)
+            children = list(ast.iter_child_nodes(node))
+            stack.extend((child, depth + 1, line) for child in reversed(children))
+        return None
 
     def _refuse_attr(
         self, node: ast.AST, name: str, how: str = "attribute", where: str = ""
@@ -122,7 +212,6 @@ class _Checker(ast.NodeVisitor):
             else:
                 root = alias.name.split(".")[0]
                 self.modules[root] = root
-        self.generic_visit(node)
 
     def visit_ImportFrom(self, node: ast.ImportFrom) -> None:
         module = node.module or ""
@@ -139,7 +228,6 @@ class _Checker(ast.NodeVisitor):
                 self._refuse_import(node, f"{module}.{alias.name}")
             else:
                 self.modules[alias.asname or alias.name] = f"{module}.{alias.name}"
-        self.generic_visit(node)
 
     def visit_Name(self, node: ast.Name) -> None:
         name = node.id
@@ -174,7 +262,6 @@ class _Checker(ast.NodeVisitor):
                     col + 1,
                 )
             )
-        self.generic_visit(node)
 
     def visit_Call(self, node: ast.Call) -> None:
         func = node.func
@@ -182,12 +269,13 @@ class _Checker(ast.NodeVisitor):
             name = node.args[1]
             if _literal(name) and attribute_refused(name.value):
                 self._refuse_attr(name, name.value)
+        if _is_type(func) and (len(node.args) != 1 or node.keywords or _starred(node.args)):
+            self.errors.append(_at(node, "SYNTAX_ERROR", NO_TYPE_CALL))
         formats = isinstance(func, ast.Attribute) and func.attr in ("format", "format_map")
         if formats and not _literal(func.value):
             self.errors.append(
                 _at(func, "SYNTAX_ERROR", f"'.{func.attr}' is allowed on a string literal only")
             )
-        self.generic_visit(node)
 
     def visit_Constant(self, node: ast.Constant) -> None:
         if isinstance(node.value, str) and "{" in node.value:
@@ -199,21 +287,54 @@ class _Checker(ast.NodeVisitor):
         for name in node.kwd_attrs:  # case C(attr=...) reads C's attribute
             if attribute_refused(name):
                 self._refuse_attr(node, name, where=" (in a class pattern)")
-        self.generic_visit(node)
 
     def visit_MatchMapping(self, node: ast.MatchMapping) -> None:
         for key in node.keys:
             if _literal(key) and is_dunder(key.value):
                 self._refuse_attr(key, key.value, "key", " (in a mapping pattern)")
         self._check_name(node, node.rest)
-        self.generic_visit(node)
 
     def visit_MatchAs(self, node: ast.MatchAs) -> None:
         self._check_name(node, node.name)
-        self.generic_visit(node)
 
     def visit_MatchStar(self, node: ast.MatchStar) -> None:
         self._check_name(node, node.name)
+
+    def visit_FunctionDef(self, node: ast.FunctionDef | ast.AsyncFunctionDef) -> None:
+        self._check_definition(node, node.name)
+
+    visit_AsyncFunctionDef = visit_FunctionDef
+
+    def visit_ClassDef(self, node: ast.ClassDef) -> None:
+        self._check_definition(node, node.name)
+        for keyword in node.keywords:
+            shown = f"{keyword.arg}=" if keyword.arg else "**"
+            self.errors.append(
+                _at(keyword, "SYNTAX_ERROR", f"class keywords ('{shown}') are not allowed: "
+                    "a reward function's classes take no metaclass or class arguments")
+            )  # fmt: skip
+        for base in node.bases:
+            if _is_type(base) or (isinstance(base, ast.Call) and _is_type(base.func)):
+                self.errors.append(_at(base, "SYNTAX_ERROR", NO_METACLASS))
+
+    def _check_definition(self, node: ast.AST, name: str) -> None:
+        """``def __name__`` / ``class __name__``: only harmless special methods."""
+        if is_dunder(name) and name not in ALLOWED_DUNDER_METHODS:
+            self.errors.append(_at(node, "SYNTAX_ERROR", special_method_refused(name)))
+
+    def _check_bound(self, node: ast.AST, name: str | None) -> None:
+        """A name bound without an ast.Name (a parameter, ``as`` of an import or except)."""
+        if name and is_dunder(name) and name not in ALLOWED_DUNDER_NAMES:
+            self.errors.append(_at(node, "SYNTAX_ERROR", f"use of '{name}' is not allowed"))
+
+    def visit_arg(self, node: ast.arg) -> None:
+        self._check_bound(node, node.arg)
+
+    def visit_alias(self, node: ast.alias) -> None:
+        self._check_bound(node, node.asname)
+
+    def visit_ExceptHandler(self, node: ast.ExceptHandler) -> None:
+        self._check_bound(node, node.name)
 
     def visit_Global(self, node: ast.Global) -> None:
         self._check_declared(node, node.names)
@@ -251,11 +372,20 @@ def _check_signature(tree: ast.Module) -> list[RewardError]:
 
 
 def check_source(source: str) -> list[RewardError]:
-    """All static errors of ``source`` (empty when it may run), in source order."""
+    """All static errors of ``source`` (empty when it may run), in source order.
+
+    Never raises for any text: a source nested past what can be checked gets one
+    :func:`too_deep` error, one over :data:`MAX_SOURCE_CHARS` the :data:`SOURCE_TOO_LONG` one.
+    """
     tree, errors = parse_source(source)
     if tree is None:
         return errors
     checker = _Checker()
-    checker.visit(tree)
+    try:
+        stopped = checker.run(tree)
+    except (RecursionError, MemoryError):  # not expected of the walk; still an answer
+        stopped = too_deep(BEYOND_PYTHON)
+    if stopped is not None:
+        return [stopped]
     errors = sorted(checker.errors, key=lambda e: (e.line or 0, e.column or 0))
     return errors + _check_signature(tree)
