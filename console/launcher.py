@@ -357,6 +357,10 @@ class ConsoleOptions:
 
 
 def web_spec(options: ConsoleOptions, env: Mapping[str, str]) -> ChildSpec:
+    """daphne serving the console. Deliberately without ``--proxy-headers``: daphne would then
+    take the left-most X-Forwarded-For address (the one a client writes) from any peer and drop
+    the connecting address. The console decides instead, from the connecting address and
+    RACECRAFT_TRUSTED_PROXIES (console/throttle.py ``client_ip``)."""
     argv = [sys.executable, "-m", "daphne", "-b", options.host, "-p", str(options.port)]
     return ChildSpec(name="web", argv=[*argv, "console.asgi:application"], env=env)
 

@@ -8,11 +8,21 @@ See README.md for the table of variables.
 
 from __future__ import annotations
 
+import contextlib
+import ipaddress
+import os
 import re
+import secrets
+import tempfile
 from pathlib import Path
 
 import dj_database_url
 from celery.schedules import crontab
+from django.core.checks.security.base import (
+    SECRET_KEY_INSECURE_PREFIX,
+    SECRET_KEY_MIN_LENGTH,
+    SECRET_KEY_MIN_UNIQUE_CHARACTERS,
+)
 from django.core.exceptions import ImproperlyConfigured
 
 from console.env import envbool, envint, envlist, envstr
@@ -23,12 +33,54 @@ BASE_DIR = Path(__file__).resolve().parent.parent
 # Runtime state (SQLite file, embedded Redis socket, local object store); git-ignored.
 VAR_DIR = Path(envstr("RACECRAFT_VAR_DIR", str(BASE_DIR / "var")))
 
+
+def _install_secret_key(var_dir: Path) -> str:
+    """This installation's own random key, made once in ``var_dir/secret_key`` (mode 0600).
+
+    The first process to start writes it: a temporary file hard-linked into place, so that
+    processes starting together (web, workers, test workers) all read the same key."""
+    path = var_dir / "secret_key"
+    if not path.exists():
+        var_dir.mkdir(parents=True, exist_ok=True)
+        fd, scratch = tempfile.mkstemp(prefix=".secret_key-", dir=var_dir)  # mode 0600
+        try:
+            with os.fdopen(fd, "w") as file:
+                file.write(secrets.token_urlsafe(64))
+            with contextlib.suppress(FileExistsError):  # another process was first
+                os.link(scratch, path)
+        finally:
+            os.unlink(scratch)
+    key = path.read_text().strip()
+    if not _strong_key(key):
+        raise ImproperlyConfigured(f"{path} does not hold a usable key: delete it to make one")
+    return key
+
+
+def _strong_key(key: str) -> bool:
+    """What `check --deploy` asks of a key: 50+ characters, 5+ different ones, and not one of
+    Django's ``django-insecure-`` development keys (the old public one among them)."""
+    return (
+        len(key) >= SECRET_KEY_MIN_LENGTH
+        and len(set(key)) >= SECRET_KEY_MIN_UNIQUE_CHARACTERS
+        and not key.startswith(SECRET_KEY_INSECURE_PREFIX)
+    )
+
+
+# Unset DEBUG means debug mode, for the one-command start on a laptop: `manage.py up` then
+# listens on loopback only (console/management/commands/up.py). Without SECRET_KEY, a debug
+# console signs with a random key of its own install (var/secret_key), never a public one; a
+# production console (DEBUG=0) refuses to start without a strong key of its operator.
 DEBUG = envbool("DEBUG", True)
 SECRET_KEY = envstr("SECRET_KEY")
+if not DEBUG and not _strong_key(SECRET_KEY):
+    _what = "it is unset" if not SECRET_KEY else "this one is short, repetitive or for development"
+    raise ImproperlyConfigured(
+        f"SECRET_KEY must be set to a long random value when DEBUG=0 ({_what}; at least "
+        f"{SECRET_KEY_MIN_LENGTH} characters, not starting with {SECRET_KEY_INSECURE_PREFIX}), "
+        "e.g. SECRET_KEY=$(python3 -c 'import secrets; print(secrets.token_urlsafe(64))')"
+    )
 if not SECRET_KEY:
-    if not DEBUG:
-        raise ImproperlyConfigured("SECRET_KEY must be set when DEBUG is off")
-    SECRET_KEY = "django-insecure-racecraft-dev-only"  # noqa: S105 - dev default
+    SECRET_KEY = _install_secret_key(VAR_DIR)
 # With DEBUG and no hosts, Django accepts localhost, 127.0.0.1 and [::1].
 ALLOWED_HOSTS = envlist("ALLOWED_HOSTS")
 CSRF_TRUSTED_ORIGINS = envlist("CSRF_TRUSTED_ORIGINS")
@@ -291,6 +343,20 @@ RACECRAFT_PREVIEW_RATE = envstr("RACECRAFT_PREVIEW_RATE", "300/m")
 for _name in ("RACECRAFT_LOGIN_RATE", "RACECRAFT_SIGNUP_RATE", "RACECRAFT_PREVIEW_RATE"):
     if not re.fullmatch(r"\d+/\d*[smhd]", globals()[_name]):
         raise ImproperlyConfigured(f"{_name}={globals()[_name]!r} is not a rate like 10/m")
+# Rates count per client address. Behind a reverse proxy every request comes from the proxy's
+# address: list the proxies here (addresses or networks, comma-separated) and, for requests
+# that come from one of them, the right-most address of X-Forwarded-For that is not a listed
+# proxy is the client's (console/throttle.py client_ip). From any other address the header is
+# ignored, so a client cannot pick its own bucket.
+RACECRAFT_TRUSTED_PROXIES = envlist("RACECRAFT_TRUSTED_PROXIES")
+for _proxy in RACECRAFT_TRUSTED_PROXIES:
+    try:
+        ipaddress.ip_network(_proxy, strict=False)
+    except ValueError:
+        raise ImproperlyConfigured(
+            f"RACECRAFT_TRUSTED_PROXIES: {_proxy!r} is not an IP address or network"
+        ) from None
+RATELIMIT_IP_META_KEY = "console.throttle.client_ip"
 
 LOGGING = {
     "version": 1,

@@ -20,9 +20,9 @@ PRODUCTION = {
 }
 
 
-def manage(*args: str) -> subprocess.CompletedProcess:
+def manage(*args: str, **overrides: str) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k not in ("DEBUG", "SECRET_KEY")}
-    env.update(PRODUCTION)
+    env.update(PRODUCTION | overrides)
     return subprocess.run([sys.executable, "manage.py", *args], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=180)  # fmt: skip
 
@@ -32,6 +32,17 @@ def test_check_deploy_is_clean_with_debug_off() -> None:
     result = manage("check", "--deploy", "--fail-level", "WARNING")
     assert result.returncode == 0, result.stdout + result.stderr
     assert "WARNINGS" not in result.stdout and "ERRORS" not in result.stdout
+
+
+@pytest.mark.parametrize("key", ["django-insecure-racecraft-dev-only", ""])
+def test_debug_off_refuses_to_start_with_the_development_key_or_none(key: str) -> None:
+    """No public key ever signs a production console's cookies: `up` (here `check`, which
+    loads the same settings) stops before anything is served, saying what to set."""
+    result = manage("check", SECRET_KEY=key)
+    assert result.returncode != 0
+    assert "ImproperlyConfigured: SECRET_KEY must be set to a long random value when DEBUG=0" \
+        in result.stderr  # fmt: skip
+    assert "secrets.token_urlsafe(64)" in result.stderr
 
 
 @pytest.mark.slow

@@ -77,14 +77,18 @@ def test_redis_prefix_reaches_every_client() -> None:
     assert celery_settings("redis://h:6379/1", "")["CELERY_BROKER_TRANSPORT_OPTIONS"] == {}
 
 
-def _load_settings(tmp_path: Path, **env: str) -> subprocess.CompletedProcess[str]:
+SUMMARY = (
+    "import console.settings as s;"
+    "print(s.DATABASES['default']['ENGINE'], s.MINIO_BUCKET, s.REDIS_URL, s.DEBUG)"
+)
+
+
+def _load_settings(
+    tmp_path: Path, code: str = SUMMARY, **env: str
+) -> subprocess.CompletedProcess[str]:
     """Import console.settings in a fresh interpreter with exactly ``env`` set."""
     clean = {k: v for k, v in os.environ.items() if k in ("PATH", "HOME", "LANG")}
     clean |= {"RACECRAFT_VAR_DIR": str(tmp_path / "var"), **env}
-    code = (
-        "import console.settings as s;"
-        "print(s.DATABASES['default']['ENGINE'], s.MINIO_BUCKET, s.REDIS_URL, s.DEBUG)"
-    )
     return subprocess.run(
         [sys.executable, "-c", code],
         cwd=REPO,
@@ -110,7 +114,16 @@ def test_defaults_need_no_environment(tmp_path: Path) -> None:
     ("env", "message"),
     [
         ({"DEBUG": "perhaps"}, "DEBUG='perhaps' is not a boolean"),
-        ({"DEBUG": "0"}, "SECRET_KEY must be set"),
+        ({"DEBUG": "0"}, "SECRET_KEY must be set to a long random value when DEBUG=0 (it is"),
+        # The old public development key, any django-insecure- key, a short or repetitive one.
+        (
+            {"DEBUG": "0", "SECRET_KEY": "django-insecure-racecraft-dev-only"},
+            "SECRET_KEY must be set to a long random value when DEBUG=0 (this one is",
+        ),
+        ({"DEBUG": "0", "SECRET_KEY": "django-insecure-" + "x7Qp" * 20}, "SECRET_KEY must be"),
+        ({"DEBUG": "0", "SECRET_KEY": "s3cret-but-short"}, "at least 50 characters"),
+        ({"DEBUG": "no", "SECRET_KEY": "ab" * 40}, "SECRET_KEY must be set"),
+        ({"RACECRAFT_TRUSTED_PROXIES": "10.0.0.1, nginx"}, "'nginx' is not an IP address"),
         ({"MINIO_BUCKET": "models"}, "MINIO_BUCKET: bucket 'models' must start with 'deepracer'"),
         ({"MINIO_BUCKET": "deepracer_x"}, "MINIO_BUCKET: bucket 'deepracer_x' is not a valid"),
         ({"MINIO_SECURE": "2"}, "MINIO_SECURE='2' is not a boolean"),
@@ -144,3 +157,37 @@ def test_database_url_selects_postgresql(tmp_path: Path) -> None:
     result = _load_settings(tmp_path, DATABASE_URL="postgres://postgres@127.0.0.1:5432/test")
     assert result.returncode == 0, result.stderr
     assert result.stdout.split()[0] == "django.db.backends.postgresql"
+
+
+KEY = "import console.settings as s; print(s.SECRET_KEY)"
+
+
+def test_a_debug_console_signs_with_its_own_install_key(tmp_path: Path) -> None:
+    """Nothing configured: a random key made once in var/secret_key (readable by its owner
+    only), the same for every later process of this install, another for another install;
+    never the public development key."""
+    first = _load_settings(tmp_path, KEY)
+    assert first.returncode == 0, first.stderr
+    key = first.stdout.strip()
+    stored = tmp_path / "var" / "secret_key"
+    assert stored.read_text().strip() == key and len(key) >= 50
+    assert stored.stat().st_mode & 0o777 == 0o600
+    assert not key.startswith("django-insecure")
+    assert _load_settings(tmp_path, KEY).stdout.strip() == key
+    other = _load_settings(tmp_path / "other", KEY)
+    assert other.returncode == 0 and other.stdout.strip() not in ("", key)
+
+
+def test_a_production_console_uses_only_its_operators_key(tmp_path: Path) -> None:
+    strong = "k" + "".join(chr(ord("a") + i % 26) for i in range(63))
+    result = _load_settings(tmp_path, KEY, DEBUG="0", SECRET_KEY=strong)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == strong
+    assert not (tmp_path / "var" / "secret_key").exists()  # no key of its own was made
+
+
+def test_trusted_proxies_default_to_none(tmp_path: Path) -> None:
+    code = "import console.settings as s; print(s.RACECRAFT_TRUSTED_PROXIES)"
+    assert _load_settings(tmp_path, code).stdout.strip() == "[]"
+    listed = _load_settings(tmp_path, code, RACECRAFT_TRUSTED_PROXIES="10.0.0.2, 172.16.0.0/12")
+    assert listed.stdout.strip() == "['10.0.0.2', '172.16.0.0/12']"
