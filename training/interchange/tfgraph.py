@@ -20,11 +20,18 @@ from tensorboard.compat.proto import attr_value_pb2, graph_pb2, node_def_pb2, ty
 from tensorboard.compat.proto.tensor_shape_pb2 import TensorShapeProto
 from tensorboard.util import tensor_util
 
+from training.interchange.graphbudget import (
+    MAX_MACS_PER_IMAGE,
+    GraphBudgetError,
+    check_graph,
+    declared_values,
+    feeds_batch,
+    op_cost,
+    strided_slice,
+)
+
 GRAPH_PRODUCER = 27  # GraphDef version of TensorFlow 1.15, what DeepRacer's tools wrote
 MAX_GRAPH_BYTES = 200 * 1024 * 1024
-MAX_CONST_ELEMENTS = 50_000_000
-"""Largest constant read (elements): a small file can declare a huge tensor of one repeated
-value, which numpy would expand in memory."""
 
 
 class GraphError(ValueError):
@@ -149,9 +156,11 @@ class GraphWriter:
 
 
 def parse_graph(data: bytes) -> graph_pb2.GraphDef:
-    """A ``GraphDef`` from ``model.pb`` bytes (at most 200 MB).
+    """A ``GraphDef`` from ``model.pb`` bytes (at most 200 MB), checked against the bounds of
+    :mod:`training.interchange.graphbudget` (sizes, depth, compute) before anything is built.
 
-    Raises :class:`GraphError` when the bytes are too large or are not a GraphDef.
+    Raises :class:`GraphError` when the bytes are too large, are not a GraphDef, or declare
+    more than a DeepRacer model (the message says what).
     """
     if len(data) > MAX_GRAPH_BYTES:
         raise GraphError(f"the graph is larger than {MAX_GRAPH_BYTES // (1024 * 1024)} MB")
@@ -162,30 +171,27 @@ def parse_graph(data: bytes) -> graph_pb2.GraphDef:
         raise GraphError(f"not a TensorFlow GraphDef ({type(exc).__name__})") from None
     if not graph.node:
         raise GraphError("the graph has no nodes")
+    try:
+        check_graph(graph)
+    except GraphBudgetError as exc:
+        raise GraphError(str(exc)) from None
     return graph
 
 
 def const_value(node: node_def_pb2.NodeDef) -> np.ndarray:
     """The numpy value of a ``Const`` node. Raises :class:`GraphError` for other nodes and for
-    constants over :data:`MAX_CONST_ELEMENTS`."""
+    constants declaring over :data:`~training.interchange.graphbudget.MAX_TENSOR_VALUES`
+    values (checked before any is built)."""
     if node.op != "Const" or "value" not in node.attr:
         raise GraphError(f"{node.name} is a {node.op}, not a constant")
-    dims = [d.size for d in node.attr["value"].tensor.tensor_shape.dim]
-    if any(d < 0 for d in dims) or int(np.prod(dims, dtype=np.float64)) > MAX_CONST_ELEMENTS:
-        raise GraphError(f"{node.name}: a constant of shape {dims} is too large")
+    try:
+        declared_values(node.attr["value"].tensor, f"the constant {node.name!r}")
+    except GraphBudgetError as exc:
+        raise GraphError(str(exc)) from None
     try:
         return tensor_util.make_ndarray(node.attr["value"].tensor)
     except Exception as exc:  # a malformed TensorProto
         raise GraphError(f"{node.name}: unreadable constant ({exc})") from None
-
-
-def _strided_slice(x: np.ndarray, begin: np.ndarray, end: np.ndarray, node) -> np.ndarray:
-    """The one form frozen DeepRacer graphs use: a slice on axis 0, maybe shrinking it."""
-    if len(begin) != 1 or node.attr["ellipsis_mask"].i or node.attr["new_axis_mask"].i:
-        raise GraphError(f"{node.name}: unsupported StridedSlice")
-    start = 0 if node.attr["begin_mask"].i & 1 else int(begin[0])
-    stop = x.shape[0] if node.attr["end_mask"].i & 1 else int(end[0])
-    return x[start] if node.attr["shrink_axis_mask"].i & 1 else x[start:stop]
 
 
 def _conv2d(x: np.ndarray, kernel: np.ndarray, node) -> np.ndarray:
@@ -227,66 +233,100 @@ def _softmax(x: np.ndarray) -> np.ndarray:
     return e / e.sum(axis=-1, keepdims=True)
 
 
+def _compute(node: node_def_pb2.NodeDef, args: list[np.ndarray]) -> np.ndarray:
+    """One op of :func:`run_graph` on its evaluated operands."""
+    op = node.op
+    if op == "Const":
+        return const_value(node)
+    if op in ("Identity", "StopGradient"):
+        return args[0]
+    if op in _BINARY:
+        return _BINARY[op](args[0], args[1])
+    if op == "Relu":
+        return np.maximum(args[0], 0)
+    if op == "Tanh":
+        return np.tanh(args[0])
+    if op == "Softmax":
+        return _softmax(args[0])
+    if op == "MatMul":
+        a, b = args
+        a = a.T if node.attr["transpose_a"].b else a
+        return a @ (b.T if node.attr["transpose_b"].b else b)
+    if op == "Conv2D":
+        return _conv2d(*args, node)
+    if op == "AvgPool":
+        return _avg_pool(args[0], node)
+    if op == "Reshape":
+        return args[0].reshape([int(d) for d in np.atleast_1d(args[1])])
+    if op == "Shape":
+        return np.asarray(args[0].shape, np.int32)
+    if op == "StridedSlice":
+        return strided_slice(args[0], args[1], args[2], node)
+    if op == "Pack":
+        return np.stack(args, axis=int(node.attr["axis"].i))
+    if op == "ConcatV2":
+        return np.concatenate(args[:-1], axis=int(np.asarray(args[-1]).reshape(-1)[0]))
+    raise GraphError(f"{node.name}: the op {op} is not supported")
+
+
+def _small(array: np.ndarray) -> np.ndarray | None:
+    return array if array.dtype.kind in "iu" and array.size <= 64 else None
+
+
 def run_graph(graph: graph_pb2.GraphDef, feeds: dict[str, np.ndarray], output: str) -> np.ndarray:
     """Evaluate ``output`` of a small inference graph with numpy (float32), no TensorFlow.
 
     Covers the ops of DeepRacer's and Racecraft's policy graphs (those of :class:`GraphWriter`
     plus Identity, StopGradient, Shape, StridedSlice and Pack); ``feeds`` maps placeholder
-    names to arrays. Raises :class:`GraphError` for any other op or a missing node.
+    names to arrays. Before each op runs, its result size and multiply-adds are checked on the
+    real operands (:func:`~training.interchange.graphbudget.op_cost`; at most
+    :data:`~training.interchange.graphbudget.MAX_MACS_PER_IMAGE` per fed image). Raises
+    :class:`GraphError` for any other op, a missing node, a cycle, an op past those bounds or
+    operands it cannot compute (naming the node and the reason).
     """
+    try:
+        check_graph(graph)
+    except GraphBudgetError as exc:
+        raise GraphError(str(exc)) from None
     nodes = {node.name: node for node in graph.node}
+    budget = MAX_MACS_PER_IMAGE * feeds_batch(feeds)
     values: dict[str, np.ndarray] = {}
-    visiting: set[str] = set()
-
-    def value(name: str) -> np.ndarray:
-        name = name.split(":")[0]
+    spent = 0
+    stack = [output.split(":")[0]]
+    while stack:  # depth-first without recursion: inputs first, then the node itself
+        name = stack[-1]
         if name in values:
-            return values[name]
+            stack.pop()
+            continue
         node = nodes.get(name)
         if node is None:
             raise GraphError(f"the graph has no node {name}")
-        if name in visiting:
-            raise GraphError(f"{name}: the graph has a cycle")
-        visiting.add(name)
-        args = [value(i) for i in node.input if not i.startswith("^")]
-        op = node.op
-        if op == "Placeholder":
+        inputs = [i.split(":")[0] for i in node.input if not i.startswith("^")]
+        missing = [i for i in inputs if i not in values]
+        if missing:  # check_graph refused cycles, so this ends
+            stack.extend(missing)
+            continue
+        stack.pop()
+        args = [values[i] for i in inputs]
+        if node.op == "Placeholder":
             if name not in feeds:
                 raise GraphError(f"no value fed for the input {name}")
-            result = np.asarray(feeds[name], np.float32)
-        elif op == "Const":
-            result = const_value(node)
-        elif op in ("Identity", "StopGradient"):
-            result = args[0]
-        elif op in _BINARY:
-            result = _BINARY[op](args[0], args[1])
-        elif op == "Relu":
-            result = np.maximum(args[0], 0)
-        elif op == "Tanh":
-            result = np.tanh(args[0])
-        elif op == "Softmax":
-            result = _softmax(args[0])
-        elif op == "MatMul":
-            a, b = args
-            a = a.T if node.attr["transpose_a"].b else a
-            result = a @ (b.T if node.attr["transpose_b"].b else b)
-        elif op == "Conv2D":
-            result = _conv2d(*args, node)
-        elif op == "AvgPool":
-            result = _avg_pool(args[0], node)
-        elif op == "Reshape":
-            result = args[0].reshape([int(d) for d in np.atleast_1d(args[1])])
-        elif op == "Shape":
-            result = np.asarray(args[0].shape, np.int32)
-        elif op == "StridedSlice":
-            result = _strided_slice(args[0], args[1], args[2], node)
-        elif op == "Pack":
-            result = np.stack(args, axis=int(node.attr["axis"].i))
-        elif op == "ConcatV2":
-            result = np.concatenate(args[:-1], axis=int(np.asarray(args[-1]).reshape(-1)[0]))
-        else:
-            raise GraphError(f"{name}: the op {op} is not supported")
-        values[name] = np.asarray(result)
-        return values[name]
-
-    return value(output)
+            values[name] = np.asarray(feeds[name], np.float32)
+            continue
+        try:
+            _, cost = op_cost(node, [a.shape for a in args], [_small(a) for a in args])
+            spent += cost
+            if spent > budget:
+                raise GraphError(
+                    f"{name}: the graph needs more than {budget:,} multiply-adds for "
+                    f"{budget // MAX_MACS_PER_IMAGE} images; a DeepRacer model needs about "
+                    "130,000,000 per image"
+                )
+            values[name] = np.asarray(_compute(node, args))
+        except GraphError:
+            raise
+        except GraphBudgetError as exc:
+            raise GraphError(str(exc)) from None
+        except (ValueError, IndexError, TypeError, ZeroDivisionError, RuntimeError) as exc:
+            raise GraphError(f"{name}: the op {node.op} cannot be computed ({exc})") from None
+    return values[output.split(":")[0]]

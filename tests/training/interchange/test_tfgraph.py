@@ -34,7 +34,7 @@ def test_a_huge_splatted_constant_is_refused() -> None:
     tensor = tensor_pb2.TensorProto(dtype=types_pb2.DT_FLOAT, tensor_shape=shape, float_val=[1])
     node = node_def_pb2.NodeDef(name="bomb", op="Const")
     node.attr["value"].CopyFrom(attr_value_pb2.AttrValue(tensor=tensor))
-    with pytest.raises(GraphError, match="bomb: a constant of shape \\[2000000000\\] is too large"):
+    with pytest.raises(GraphError, match="the constant 'bomb' declares 2,000,000,000 values"):
         const_value(node)
 
 
