@@ -13,10 +13,14 @@ from django.urls import reverse
 from django.views.decorators.http import require_http_methods, require_safe
 
 from training import services
-from training.sandbox import MAX_SOURCE_CHARS, check_source
+from training.sandbox import MAX_SOURCE_CHARS, RewardError, check_source
+from training.sandbox.static import SOURCE_TOO_LONG
 from training.services import background, rewards
 
-MAX_BODY_BYTES = MAX_SOURCE_CHARS * 4 + 4096
+#: The largest request a source at the limit can make: 12 bytes a character when a form
+#: percent-encodes 4-byte UTF-8, JSON escapes take at most 6. Anything larger is refused
+#: before it is read, with the one message for a source that is too long.
+MAX_BODY_BYTES = MAX_SOURCE_CHARS * 12 + 4096
 OPENAPI_PATH = Path(__file__).resolve().parent.parent / "openapi.json"
 
 
@@ -59,6 +63,14 @@ def background_task(request: HttpRequest, task_id: str) -> JsonResponse:
     return JsonResponse(status)
 
 
+def _declared_length(request: HttpRequest) -> int:
+    """The body's Content-Length, read before the body is (0 when absent or unreadable)."""
+    try:
+        return int(request.META.get("CONTENT_LENGTH") or 0)
+    except ValueError:
+        return 0
+
+
 @login_required
 @require_http_methods(["GET", "POST"])
 def reward_validate(request: HttpRequest) -> JsonResponse:
@@ -69,7 +81,9 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
     ``{status: done, ok, errors, rewards}``.
 
     Errors are DeepRacer's: ``{type, message, line, column, lineNumber}``; a request we cannot
-    read, or one over the per-user limits, answers 400 (429 for limits) with one REQUEST_ERROR.
+    read, or one over the per-user limits, answers 400 (429 for limits) with one REQUEST_ERROR;
+    a body too large for any source within the limit, 413 with the SYNTAX_ERROR every other
+    way of checking gives a source that is too long (``SOURCE_TOO_LONG``).
     """
     if request.method == "GET":
         try:
@@ -79,8 +93,10 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
         except rewards.ValidationNotFound:
             return _error("No such validation.", status=404)
         return JsonResponse(dict(status))
-    if len(request.body) > MAX_BODY_BYTES:
-        return _error("The reward function is too long.", status=413, field="source")
+    if _declared_length(request) > MAX_BODY_BYTES or len(request.body) > MAX_BODY_BYTES:
+        too_long = {**RewardError("SYNTAX_ERROR", SOURCE_TOO_LONG).to_dict(), "field": "source"}
+        body = {"status": "done", "ok": False, "errors": [too_long], "rewards": {}}
+        return JsonResponse(body, status=413)
     if request.content_type == "application/json":
         try:
             payload = json.loads(request.body or b"{}")

@@ -32,8 +32,8 @@ from typing import BinaryIO
 from training.interchange.export import CheckpointError, checkpoint_bytes, load_checkpoint
 from training.rl.hyperparams import HyperparameterError, Hyperparameters, parse_hyperparameters
 from training.rl.metadata import MetadataError, ModelMetadata, parse_metadata
+from training.sandbox.static import source_too_long
 
-MAX_REWARD_CHARS = 140_000
 TF_SUFFIXES = (".pb", ".ckpt", ".index", ".meta", ".coach_checkpoint")
 EXTRA_SUFFIXES = (".json", ".yaml", ".yml", ".csv", ".txt", ".log", ".md")
 """Other files kept from an upload (metrics, training_params.yaml...); never code or weights."""
@@ -254,8 +254,8 @@ def reward_source(files: Mapping[str, bytes], name: str) -> str:
         source = files[name].decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ArchiveError(f"{name}: not UTF-8 text (byte {exc.start})") from None
-    if len(source) > MAX_REWARD_CHARS:
-        raise ArchiveError(f"{name}: longer than {MAX_REWARD_CHARS:,} characters")
+    if (too_long := source_too_long(source)) is not None:
+        raise ArchiveError(f"{name}: {too_long.message}")
     if "\x00" in source:
         raise ArchiveError(f"{name}: contains NUL characters")
     if not source.strip():

@@ -14,8 +14,13 @@ from __future__ import annotations
 import builtins
 from typing import Any
 
-from training.sandbox.policy import ALLOWED_DUNDER_METHODS, is_dunder
-from training.sandbox.static import NO_METACLASS, NO_TYPE_CALL, special_method_refused
+from training.sandbox.policy import (
+    ALLOWED_DUNDER_METHODS,
+    NO_METACLASS,
+    NO_TYPE_CALL,
+    is_dunder,
+    special_method_refused,
+)
 
 _real_type = builtins.type
 _real_build_class = builtins.__build_class__

@@ -132,6 +132,24 @@ ALLOWED_DUNDER_METHODS: frozenset[str] = frozenset(
     }
 )  # fmt: skip
 
+NO_METACLASS = (
+    "a class may not derive from 'type': metaclasses are not allowed in a reward function"
+)
+NO_TYPE_CALL = (
+    "type() with three arguments (a class made at run time) is not allowed; "
+    "type(x) gives the type of x, and a class statement makes a class"
+)
+
+
+def special_method_refused(name: str) -> str:
+    """The message for defining special method ``name`` outside the allowed ones."""
+    return (
+        f"defining '{name}' is not allowed: a reward function's classes may define only "
+        "ordinary special methods (__init__, __repr__, __eq__, __add__, __len__, __iter__, "
+        "__call__, ...), none that change how Python looks names up"
+    )
+
+
 #: Star imports are refused except from these (numpy's namespace holds load/save/...).
 STAR_IMPORT_MODULES: frozenset[str] = frozenset({"math", "random"})
 

@@ -18,7 +18,7 @@ from training.models import MODEL_NAME_RE, Direction, RacingModel
 from training.rewards.validation import validate_reward_function
 from training.rl.hyperparams import HyperparameterError, parse_hyperparameters
 from training.rl.metadata import MetadataError, ModelMetadata, build_metadata
-from training.sandbox import MAX_SOURCE_CHARS
+from training.sandbox.static import source_too_long
 from training.services.racing import (  # noqa: F401 - the race rules live in racing
     SUPPORTED_RACE_TYPES,
     check_race_type,
@@ -159,11 +159,8 @@ def check_reward(source: str, track_id: str, direction: str = "native") -> dict:
     """Validate a reward function on the track (static checks, then sandboxed runs)."""
     if not isinstance(source, str) or not source.strip():
         raise ServiceError("write a reward function", field="reward_function")
-    if len(source) > MAX_SOURCE_CHARS:
-        raise ServiceError(
-            f"the reward function is {len(source):,} characters; the limit is {MAX_SOURCE_CHARS:,}",
-            field="reward_function",
-        )
+    if (too_long := source_too_long(source)) is not None:
+        raise RewardRejected([too_long])
     track = check_track(track_id, direction)
     result = validate_reward_function(source, track)
     if not result.ok:

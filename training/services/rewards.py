@@ -33,7 +33,8 @@ from django.conf import settings
 
 from training.dispatch import VALIDATE_REWARD
 from training.errors import RewardRejected, ServiceError
-from training.sandbox import MAX_SOURCE_CHARS, check_source
+from training.sandbox import check_source
+from training.sandbox.static import source_too_long
 from training.services.checks import check_reward, check_track
 
 log = logging.getLogger(__name__)
@@ -141,11 +142,8 @@ def reward_validation_remember(*, user_id: int, source: str, track_id: str, dire
 def _check_request(source: object, track_id: object, direction: object) -> None:
     if not isinstance(source, str) or not source.strip():
         raise ServiceError("write a reward function", field="reward_function")
-    if len(source) > MAX_SOURCE_CHARS:
-        raise ServiceError(
-            f"the reward function is {len(source):,} characters; the limit is {MAX_SOURCE_CHARS:,}",
-            field="reward_function",
-        )
+    if (too_long := source_too_long(source)) is not None:
+        raise RewardRejected([too_long])
     if not isinstance(track_id, str) or not isinstance(direction, str):
         raise ServiceError("choose a track and a direction", field="track_id")
     check_track(track_id, direction)
