@@ -13,7 +13,14 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from training.interchange.carmodel import output_name
-from training.interchange.graphimport import GraphImportError, Layer, NetworkLayers, build_policy
+from training.interchange.policybuild import (
+    GraphImportError,
+    Layer,
+    NetworkLayers,
+    build_policy,
+    refusing_bad_values,
+)
+from training.interchange.tfcheckpoint import CheckpointFormatError
 from training.rl.metadata import ModelMetadata
 from training.rl.policies import SPECS
 
@@ -27,8 +34,16 @@ def policy_from_checkpoint(
     A checkpoint holds variables, not the graph, so DeepRacer's layout is assumed: the policy
     network's ``<SENSOR>/Conv2d_<n>/kernel|bias`` (strides from the matching network of
     :data:`training.rl.policies.SPECS`), ``middleware_fc_embedder/Dense_0`` and the one dense
-    layer of its head, on images divided by 255. Raises :class:`GraphImportError`.
+    layer of its head, on images divided by 255. Raises :class:`GraphImportError` (for a
+    malformed tensor too, with the reason).
     """
+    with refusing_bad_values("checkpoint", passing=(CheckpointFormatError,)):
+        return _policy(tensors, metadata)
+
+
+def _policy(
+    tensors: Mapping[str, np.ndarray], metadata: ModelMetadata
+) -> tuple[BaseAlgorithm, ModelMetadata]:
     if metadata.lidar is not None:
         raise GraphImportError(
             f"importing a DeepRacer checkpoint with a {metadata.lidar} is not supported: its "

@@ -20,9 +20,15 @@ import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from tensorboard.compat.proto import tensor_shape_pb2, types_pb2
 
+from training.interchange.graphbudget import (
+    LARGEST_REAL_TENSOR,
+    MAX_GRAPH_VALUES,
+    MAX_RANK,
+    MAX_TENSOR_VALUES,
+)
+
 TABLE_MAGIC = 0xDB4775248B80FB57
 FOOTER_BYTES = 48
-MAX_TENSOR_ELEMENTS = 50_000_000
 DTYPES = {types_pb2.DT_FLOAT: np.dtype("<f4"), types_pb2.DT_INT32: np.dtype("<i4")}
 
 
@@ -126,27 +132,81 @@ def read_index(index: bytes) -> dict[str, object]:
     return entries
 
 
-def read_checkpoint(index: bytes, shards: Mapping[int, bytes]) -> dict[str, np.ndarray]:
-    """Every float32/int32 tensor of a checkpoint: name → array.
+def _declared(name: str, entry: object) -> tuple[list[int], int]:
+    """The shape and value count a bundle entry declares, within the bounds."""
+    shape = [d.size for d in entry.shape.dim]
+    if entry.shape.unknown_rank or len(shape) > MAX_RANK or any(d < 0 for d in shape):
+        raise CheckpointFormatError(f"the tensor {name!r} has no usable shape ({shape})")
+    count = 1
+    for size in shape:
+        count *= size
+    if count > MAX_TENSOR_VALUES:
+        raise CheckpointFormatError(
+            f"the tensor {name!r} declares {count:,} values; a DeepRacer model has at most "
+            f"{MAX_TENSOR_VALUES:,} in one tensor (its biggest has {LARGEST_REAL_TENSOR:,})"
+        )
+    return shape, count
+
+
+class CheckpointTensors(Mapping[str, np.ndarray]):
+    """A checkpoint's float32/int32 tensors by name, each read from its shard on first use.
+
+    Every entry was checked when the index was read (shape, bound, shard, bytes in range);
+    the values read in all are bounded by
+    :data:`~training.interchange.graphbudget.MAX_GRAPH_VALUES` (a checkpoint also holds Adam
+    slots and target copies the import never reads). Raises :class:`CheckpointFormatError`.
+    """
+
+    def __init__(self, entries: dict[str, tuple], shards: Mapping[int, bytes]) -> None:
+        self._entries, self._shards = entries, shards
+        self._read: dict[str, np.ndarray] = {}
+        self._values = 0
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name in self._read:
+            return self._read[name]
+        entry, dtype, shape, count = self._entries[name]
+        if self._values + count > MAX_GRAPH_VALUES:
+            raise CheckpointFormatError(
+                f"the tensors read declare more than {MAX_GRAPH_VALUES:,} values in all "
+                f"(at {name!r}); a DeepRacer model has at most {MAX_GRAPH_VALUES:,}"
+            )
+        self._values += count
+        raw = self._shards[entry.shard_id][entry.offset : entry.offset + entry.size]
+        array = np.frombuffer(raw, dtype).reshape(shape).astype(dtype.newbyteorder("="))
+        self._read[name] = array
+        return array
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._entries)
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+
+def read_checkpoint(index: bytes, shards: Mapping[int, bytes]) -> CheckpointTensors:
+    """Every float32/int32 tensor of a checkpoint: name → array, read on first use.
 
     ``shards`` maps a shard number to the bytes of ``.data-<shard>-of-<n>``. Tensors of other
-    types (strings, int64 step counters...) are left out. Raises
-    :class:`CheckpointFormatError` for a damaged file, a missing shard or an oversized tensor.
+    types (strings, int64 step counters...) are left out. Every entry is checked here, before
+    any tensor is built: its declared shape (at most
+    :data:`~training.interchange.graphbudget.MAX_TENSOR_VALUES` values), its shard, and that
+    its bytes lie inside it. Raises :class:`CheckpointFormatError` saying what is wrong.
     """
-    tensors: dict[str, np.ndarray] = {}
+    entries: dict[str, tuple] = {}
     for name, entry in read_index(index).items():
         dtype = DTYPES.get(entry.dtype)
         if dtype is None:
             continue
-        shape = [d.size for d in entry.shape.dim]
-        count = int(np.prod(shape, dtype=np.float64))
-        if any(d < 0 for d in shape) or count > MAX_TENSOR_ELEMENTS:
-            raise CheckpointFormatError(f"{name}: a tensor of shape {shape} is too large")
+        shape, count = _declared(name, entry)
         if entry.shard_id not in shards:
             raise CheckpointFormatError(f"{name}: data shard {entry.shard_id} is missing")
         data = shards[entry.shard_id]
-        if entry.size != count * dtype.itemsize or entry.offset + entry.size > len(data):
+        if (
+            entry.size != count * dtype.itemsize
+            or entry.offset < 0
+            or entry.offset + entry.size > len(data)
+        ):
             raise CheckpointFormatError(f"{name}: its bytes do not fit shape {shape}")
-        raw = data[entry.offset : entry.offset + entry.size]
-        tensors[name] = np.frombuffer(raw, dtype).reshape(shape).astype(dtype.newbyteorder("="))
-    return tensors
+        entries[name] = (entry, dtype, shape, count)
+    return CheckpointTensors(entries, shards)
