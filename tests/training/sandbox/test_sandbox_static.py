@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from training.sandbox import RewardFunctionError, check_source
+from training.sandbox import RewardError, RewardFunctionError, check_source
 from training.sandbox.guard import RewardCallable, load_reward_function
+from training.sandbox.static import MAX_SOURCE_CHARS, SOURCE_TOO_LONG, source_too_long
 
 HEAD = "import math\nimport numpy as np\n\ndef reward_function(params):\n"
 
@@ -131,3 +132,151 @@ def test_allowed_submodules_are_reached_through_the_guard() -> None:
     assert check_source(source) == []
     hb = memoryview(bytearray(32)).cast("q")
     assert RewardCallable(load_reward_function(source), hb)({}) == 5.0
+
+
+# ------------------------------------------------------------------ class machinery (issue 22)
+CLASS_REFUSED = {
+    "metaclass_base": ("class M(type):\n    pass\n", 1, "may not derive from 'type'"),
+    "metaclass_of_a_value": ("class M(type(1)):\n    pass\n", 1, "may not derive from 'type'"),
+    "metaclass_keyword": (
+        "class C(metaclass=abs):\n    pass\n",
+        1,
+        "class keywords ('metaclass=')",
+    ),
+    "class_keyword": ("class C(flavour=1):\n    pass\n", 1, "class keywords ('flavour=')"),
+    "instancecheck": (
+        "class C:\n    def __instancecheck__(self, o):\n        return True\n",
+        2,
+        "defining '__instancecheck__' is not allowed",
+    ),
+    "getattr_method": (
+        "class C:\n    x = 1\n    def __getattr__(self, n):\n        return 1\n",
+        3,
+        "defining '__getattr__' is not allowed",
+    ),
+    "init_subclass": (
+        "class C:\n    def __init_subclass__(cls):\n        pass\n",
+        2,
+        "defining '__init_subclass__'",
+    ),
+    "match_args": ("class C:\n    __match_args__ = ('x',)\n", 2, "use of '__match_args__'"),
+    "type_three_args": ("C = type('C', (), {})\n", 1, "three arguments"),
+    "type_starred": ("C = type(*('C', (), {}))\n", 1, "three arguments"),
+    "type_keyword": ("C = type(object=1)\n", 1, "three arguments"),
+    "dunder_parameter": ("def f(__builtins__):\n    pass\n", 1, "use of '__builtins__'"),
+    "dunder_import_alias": ("import math as __loader__\n", 1, "use of '__loader__'"),
+    "dunder_except_name": (
+        "try:\n    pass\nexcept Exception as __spec__:\n    pass\n",
+        3,
+        "use of '__spec__'",
+    ),
+}
+
+
+@pytest.mark.parametrize("code, line, message", CLASS_REFUSED.values(), ids=list(CLASS_REFUSED))
+def test_class_machinery_is_refused_at_its_line(code: str, line: int, message: str) -> None:
+    errors = check_source(code + "\ndef reward_function(params):\n    return 1.0\n")
+    assert errors, code
+    first = errors[0]
+    assert first.type == "SYNTAX_ERROR" and (first.line, message in first.message) == (line, True)
+    assert first.column is not None
+
+
+def test_ordinary_classes_still_pass_and_run() -> None:
+    source = (
+        "import math\n\n"
+        "class Vec:\n"
+        "    def __init__(self, x, y):\n        self.x, self.y = x, y\n"
+        "    def __add__(self, o):\n        return Vec(self.x + o.x, self.y + o.y)\n"
+        "    def __sub__(self, o):\n        return Vec(self.x - o.x, self.y - o.y)\n"
+        "    def __abs__(self):\n        return math.hypot(self.x, self.y)\n"
+        "    def __eq__(self, o):\n        return (self.x, self.y) == (o.x, o.y)\n"
+        "    def __hash__(self):\n        return hash((self.x, self.y))\n"
+        "    def __iter__(self):\n        return iter((self.x, self.y))\n"
+        "    def __repr__(self):\n        return f'Vec({self.x}, {self.y})'\n\n"
+        "class Named(Vec):\n"
+        "    def scaled(self, k):\n        return Named(self.x * k, self.y * k)\n\n"
+        "def reward_function(params):\n"
+        "    a, b = Named(3, 0).scaled(1), Vec(0, 4)\n"
+        "    assert type(a) is Named and isinstance(Named, type) and type(type(a)) is type\n"
+        "    return abs(a - b) if a + b == Vec(3, 4) else 0.0\n"
+    )
+    assert check_source(source) == []
+    hb = memoryview(bytearray(32)).cast("q")
+    assert RewardCallable(load_reward_function(source), hb)({}) == 5.0
+
+
+# ------------------------------------------------------------------ deep sources (issue 22)
+def _elif_table(branches: int) -> str:
+    lines = ["def reward_function(params):", "    x = int(params['steps'])", "    if x == 0:"]
+    lines.append("        return 0.5")
+    for i in range(1, branches):
+        lines += [f"    elif x == {i}:", f"        return {i / branches}"]
+    return "\n".join([*lines, "    return 1.0", ""])
+
+
+def test_a_500_branch_elif_table_passes_and_runs() -> None:
+    source = _elif_table(500)
+    assert check_source(source) == []
+    hb = memoryview(bytearray(32)).cast("q")
+    assert RewardCallable(load_reward_function(source), hb)({"steps": 250}) == 0.5
+
+
+FN = "def reward_function(params):\n    return "
+DEEP = {
+    "long_sum": (FN + "1.0" + " + 1" * 5000 + "\n", None),
+    "long_attribute_chain": (FN + "params" + ".get" * 5000 + "\n", None),
+    "long_call_chain": (FN + "float" + "(1)" * 5000 + "\n", None),
+    "long_unary_chain": (FN + "-" * 5000 + "1.0\n", None),
+    "long_subscript_chain": (FN + "params" + "[0]" * 5000 + "\n", None),
+    "nested_conditional": (FN + "1.0 if params else " * 2000 + "1.0\n", 2),
+    "nested_lambdas": (FN + "(" + "lambda: " * 2000 + "1.0)\n", 2),
+}
+
+
+@pytest.mark.parametrize("source, line", DEEP.values(), ids=list(DEEP))
+def test_a_source_too_deep_to_check_gets_one_clear_error(source: str, line: int | None) -> None:
+    (error,) = check_source(source)
+    assert error.type == "SYNTAX_ERROR"
+    assert error.message.startswith("the reward function is nested too deeply to check: ")
+    assert error.line == line
+    with pytest.raises(RewardFunctionError) as caught:  # the sandbox's loader says the same
+        load_reward_function(source)
+    assert caught.value.error == error
+
+
+NOT_TOO_DEEP = {
+    "nested_brackets": FN + "float(len(" + "[" * 150 + "]" * 150 + "))\n",
+    "nested_parentheses": FN + "(" * 150 + "1.0" + ")" * 150 + "\n",
+    "long_boolean_chain": FN + "1.0" + " and 1.0" * 5000 + "\n",
+    "long_comparison_chain": FN + "float(1" + " < 2" * 5000 + ")\n",
+    "nested_format_specs": FN + "float(len('" + "{:" * 3000 + "}" * 3000 + "'))\n",
+}
+
+
+@pytest.mark.parametrize("source", NOT_TOO_DEEP.values(), ids=list(NOT_TOO_DEEP))
+def test_deep_but_checkable_sources_pass_and_load(source: str) -> None:
+    assert check_source(source) == []
+    assert callable(load_reward_function(source))
+
+
+def test_fields_in_nested_format_specs_are_still_read() -> None:
+    source = FN + "'{0:{1:{2.__class__}}}'.format(1, 2, params)\n"
+    (error,) = check_source(source)
+    assert "'__class__' (in a format string)" in error.message
+
+
+def test_the_compiler_giving_up_is_a_clear_error_too() -> None:
+    """Without the static check (python_guards=False) compile() itself meets the nesting."""
+    source = FN + "(" + "lambda: " * 20_000 + "1.0)\n"
+    with pytest.raises(RewardFunctionError) as caught:
+        load_reward_function(source, python_guards=False)
+    assert caught.value.error.message.startswith("the reward function is nested too deeply")
+
+
+def test_one_message_for_a_source_too_long() -> None:
+    source = "def reward_function(p):\n    return 1.0\n" + "#" * MAX_SOURCE_CHARS
+    assert source_too_long(source) == RewardError("SYNTAX_ERROR", SOURCE_TOO_LONG)
+    assert source_too_long(source[:MAX_SOURCE_CHARS]) is None
+    assert check_source(source) == [RewardError("SYNTAX_ERROR", SOURCE_TOO_LONG)]
+    assert "140,000 characters" in SOURCE_TOO_LONG
