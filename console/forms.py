@@ -3,15 +3,18 @@ lives in console/model_form.py."""
 
 from __future__ import annotations
 
+import secrets
 from typing import Any
 
 from django import forms
 from django.contrib.auth import password_validation
 from django.contrib.auth.forms import UserCreationForm
+from django.core.cache import cache
 from django.core.validators import RegexValidator
 
 from console import tracks
 from console.race_form import RaceSettingsForm
+from racing.tracks import MAX_TRACK_FILE_BYTES
 from training.errors import ServiceError
 from training.interchange.archive import ImportLimits
 from training.models import MODEL_NAME_RE, Direction, RaceType
@@ -87,9 +90,35 @@ class CloneForm(forms.Form):
         self.fields["track_id"].choices = _track_choices()
 
 
+KEPT_TRACK_S = 3600
+"""How long a previewed track file waits on the server for its Import, seconds."""
+_KEPT_TRACK_KEY = "track-upload:{user_id}"
+
+
+def track_upload_keep(*, user_id: int, data: bytes, filename: str) -> str:
+    """Keep a previewed track file on the server (Django's cache: Redis, shared by every web
+    process) for :data:`KEPT_TRACK_S`, so Import does not send it again; returns the token the
+    page carries instead of the file. One kept file per user: a new preview replaces it, so a
+    user holds at most one track file's size (MAX_TRACK_FILE_BYTES) there."""
+    token = secrets.token_urlsafe(16)
+    kept = {"token": token, "data": data, "filename": filename}
+    cache.set(_KEPT_TRACK_KEY.format(user_id=user_id), kept, KEPT_TRACK_S)
+    return token
+
+
+def track_upload_forget(*, user_id: int) -> None:
+    cache.delete(_KEPT_TRACK_KEY.format(user_id=user_id))
+
+
 class TrackUploadForm(forms.Form):
-    """A DeepRacer ``.npy`` track file; after a preview the file travels in ``data`` (base64)
-    so that Import does not ask for it again."""
+    """A DeepRacer ``.npy`` track file of at most MAX_TRACK_FILE_BYTES. After a preview the
+    file waits on the server (:func:`track_upload_keep`) and the page carries only its token in
+    ``kept``: sent back in the form, a 2 MB file would be 2.7 MB of base64, over Django's
+    limit on a request's fields (DATA_UPLOAD_MAX_MEMORY_SIZE, 2.5 MiB): Import answered 400.
+    """
+
+    max_size = f"{MAX_TRACK_FILE_BYTES / 1_000_000:g} MB"
+    """The limit in words, for the page."""
 
     file = forms.FileField(label="Track file (.npy)", required=False,
                            widget=forms.ClearableFileInput(attrs={"accept": ".npy"}))  # fmt: skip
@@ -98,23 +127,36 @@ class TrackUploadForm(forms.Form):
         help_text="Letters, digits, '_' or '-'; default: the file's name.",
     )  # fmt: skip
     name = forms.CharField(label="Display name", max_length=80, required=False)
-    data = forms.CharField(widget=forms.HiddenInput, required=False)
-    filename = forms.CharField(widget=forms.HiddenInput, required=False)
+    kept = forms.CharField(widget=forms.HiddenInput, required=False, max_length=64)
+    filename = forms.CharField(widget=forms.HiddenInput, required=False, max_length=255)
+
+    def __init__(self, *args: Any, user_id: int | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.user_id = user_id
+        self._kept: tuple[bytes, str] = (b"", "")
+
+    def clean(self) -> dict[str, Any]:
+        cleaned = super().clean()
+        token = cleaned.get("kept")
+        if cleaned.get("file") or not token:
+            return cleaned
+        kept = None
+        if self.user_id is not None:
+            kept = cache.get(_KEPT_TRACK_KEY.format(user_id=self.user_id))
+        if not kept or not secrets.compare_digest(kept["token"], token):
+            self.add_error("file", "The checked file is no longer kept (an hour after its "
+                           "preview, or after another preview): choose it again.")  # fmt: skip
+        else:
+            self._kept = (kept["data"], kept["filename"])
+        return cleaned
 
     def upload(self) -> tuple[bytes, str]:
-        """The file's bytes and name: the new upload, else the one carried from the preview."""
-        import base64
-        import binascii
-
+        """The file's bytes and name: the new upload, else the one kept from the preview.
+        At most one byte over the limit is read, enough for the services to refuse it."""
         upload = self.cleaned_data.get("file")
         if upload:
-            return upload.read(2_000_001), upload.name
-        try:
-            return base64.b64decode(self.cleaned_data.get("data") or "", validate=True), (
-                self.cleaned_data.get("filename") or ""
-            )
-        except (binascii.Error, ValueError):
-            return b"", ""
+            return upload.read(MAX_TRACK_FILE_BYTES + 1), upload.name
+        return self._kept
 
 
 class RewardForm(forms.Form):

@@ -11,7 +11,12 @@ from django.utils.cache import get_conditional_response, patch_cache_control
 from django.views.decorators.http import require_POST, require_safe
 
 from console import throttle, tracks
-from console.forms import TrackUploadForm, add_service_error
+from console.forms import (
+    TrackUploadForm,
+    add_service_error,
+    track_upload_forget,
+    track_upload_keep,
+)
 from console.race_form import RaceLayoutForm, TrackLayoutForm
 from training import services
 
@@ -84,7 +89,7 @@ def track_upload(request: HttpRequest) -> HttpResponse:
     """Preview (validate and draw) or import an uploaded track file."""
     if not request.user.is_authenticated:
         return redirect("/accounts/login/?next=/tracks/%23import")
-    form = TrackUploadForm(request.POST, request.FILES)
+    form = TrackUploadForm(request.POST, request.FILES, user_id=request.user.pk)
     if not form.is_valid():
         return _gallery(request, form, status=400, jump="import")
     data, filename = form.upload()
@@ -100,13 +105,14 @@ def track_upload(request: HttpRequest) -> HttpResponse:
         add_service_error(form, exc.message, exc.field)
         return _gallery(request, form, status=400, jump="import")
     if "preview" in request.POST:
+        kept = track_upload_keep(user_id=request.user.pk, data=data, filename=filename)
         carried = TrackUploadForm(initial={
-            "track_id": track_id, "name": name, "filename": filename,
-            "data": base64.b64encode(data).decode(),
+            "track_id": track_id, "name": name, "filename": filename, "kept": kept,
         })  # fmt: skip
         return _gallery(request, carried, jump="import", check=check,
                         preview_src="data:image/png;base64,"
                         + base64.b64encode(check.preview_png).decode())  # fmt: skip
+    track_upload_forget(user_id=request.user.pk)
     messages.success(request, f"Track {info.name} imported: {info.length_m:.2f} m long, "
                      f"{info.width_m:.2f} m wide. Every user can train on it now.")  # fmt: skip
     return redirect(f"/tracks/#track-{info.id}")
