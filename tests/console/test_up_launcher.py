@@ -186,6 +186,11 @@ def test_manage_py_up_serves_runs_tasks_and_stops_on_sigterm(short_dir: Path) ->
     text = output.decode(errors="replace")
     assert f"Racecraft is running at http://127.0.0.1:{port}" in text
     assert "racecraft: stopped" in text
+    if "DEBUG" not in os.environ and "SECRET_KEY" not in os.environ:
+        # Nothing configured (the README's one command): debug mode on loopback, said so, with
+        # a key of this install's own, never the public development key.
+        assert "racecraft: debug mode (DEBUG unset or 1): this machine only" in text
+        assert len((var_dir / "secret_key").read_text().strip()) >= 50
     deadline = time.monotonic() + 15
     while not all(_gone(child.pid) for child in children) and time.monotonic() < deadline:
         time.sleep(0.2)

@@ -61,6 +61,9 @@ class Command(BaseCommand):
         connections.close_all()
         for line in isolation_summary():  # what protects this machine from reward code
             self.stdout.write(f"racecraft: {line}")
+        if settings.DEBUG:
+            key_set = bool(os.environ.get("SECRET_KEY", "").strip())
+            self.stdout.write(f"racecraft: {debug_mode_note(secret_key_set=key_set)}")
         launch = ConsoleOptions(
             host=host,
             port=port,
@@ -95,3 +98,12 @@ def refuse_debug_on_open_address(host: str, *, debug: bool) -> None:
             "tracebacks to anyone who can reach them. Set DEBUG=0 (with SECRET_KEY and "
             "ALLOWED_HOSTS) for a console other machines reach, or listen on 127.0.0.1."
         )
+
+
+def debug_mode_note(*, secret_key_set: bool) -> str:
+    """What a console in debug mode (DEBUG unset or 1) is, in one line for `up`'s output."""
+    key = "SECRET_KEY" if secret_key_set else "this install's own random key (var/secret_key)"
+    return (
+        f"debug mode (DEBUG unset or 1): this machine only, cookies signed with {key}. "
+        "For a console other machines reach: DEBUG=0 with SECRET_KEY and ALLOWED_HOSTS."
+    )
