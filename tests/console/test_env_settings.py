@@ -115,14 +115,12 @@ def test_defaults_need_no_environment(tmp_path: Path) -> None:
     [
         ({"DEBUG": "perhaps"}, "DEBUG='perhaps' is not a boolean"),
         ({"DEBUG": "0"}, "SECRET_KEY must be set to a long random value when DEBUG=0 (it is"),
-        # The old public development key, any django-insecure- key, a short or repetitive one.
+        # The old public development key, or any of Django's django-insecure- keys.
         (
             {"DEBUG": "0", "SECRET_KEY": "django-insecure-racecraft-dev-only"},
-            "SECRET_KEY must be set to a long random value when DEBUG=0 (this one is",
+            "SECRET_KEY must be set to a long random value when DEBUG=0 (a django-insecure- key",
         ),
-        ({"DEBUG": "0", "SECRET_KEY": "django-insecure-" + "x7Qp" * 20}, "SECRET_KEY must be"),
-        ({"DEBUG": "0", "SECRET_KEY": "s3cret-but-short"}, "at least 50 characters"),
-        ({"DEBUG": "no", "SECRET_KEY": "ab" * 40}, "SECRET_KEY must be set"),
+        ({"DEBUG": "no", "SECRET_KEY": "django-insecure-" + "x7Qp" * 20}, "SECRET_KEY must be"),
         ({"RACECRAFT_TRUSTED_PROXIES": "10.0.0.1, nginx"}, "'nginx' is not an IP address"),
         ({"MINIO_BUCKET": "models"}, "MINIO_BUCKET: bucket 'models' must start with 'deepracer'"),
         ({"MINIO_BUCKET": "deepracer_x"}, "MINIO_BUCKET: bucket 'deepracer_x' is not a valid"),
