@@ -128,3 +128,31 @@ def test_validations_per_minute_are_limited(alice_client, settings) -> None:
     settings.RACECRAFT_VALIDATIONS_PER_MINUTE = 2
     codes = [start(alice_client, OK).status_code for _ in range(3)]
     assert codes[:2] == [202, 202] and codes[2] == 429
+
+
+def _elif_table(branches: int) -> str:
+    lines = ["def reward_function(params):", "    x = int(params['steps'])", "    if x == 0:"]
+    lines.append("        return 0.5")
+    for i in range(1, branches):
+        lines += [f"    elif x == {i}:", f"        return {1 + i / branches}"]
+    return "\n".join([*lines, "    return 1.0", ""])
+
+
+@pytest.mark.slow
+def test_deep_sources_through_the_web_and_a_worker(alice_client, worker) -> None:
+    """Issue 22: a 500-branch elif table is checked (web, worker, sandbox) and runs; one nested
+    past what can be checked, and the metaclass hole, are answered at once with their line."""
+    response = start(alice_client, _elif_table(500))
+    assert response.status_code == 202
+    body = wait_done(alice_client, response.json()["poll"])
+    assert body["ok"] is True and body["rewards"], body
+    deeper = "def reward_function(params):\n    return (" + "lambda: " * 2000 + "1.0)\n"
+    body = start(alice_client, deeper).json()
+    assert body["status"] == "done" and body["ok"] is False
+    (error,) = body["errors"]
+    assert error["message"].startswith("the reward function is nested too deeply to check: ")
+    assert error["lineNumber"] == 2
+    hostile = Path(__file__).parent / "hostile" / "match_metaclass_getattr_no_dunder_literal.py"
+    body = start(alice_client, hostile.read_text()).json()
+    assert body["status"] == "done" and body["errors"][0]["lineNumber"] == 11
+    assert "may not derive from 'type'" in body["errors"][0]["message"]
