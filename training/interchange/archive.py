@@ -241,6 +241,19 @@ def read_json(files: Mapping[str, bytes], name: str) -> object:
         return json.loads(text, parse_constant=_refuse_constant)
     except (UnicodeDecodeError, ValueError) as exc:
         raise ArchiveError(f"{name}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise ArchiveError(f"{name}: nested too deeply to read") from None
+
+
+def read_metadata(files: Mapping[str, bytes], name: str) -> ModelMetadata:
+    """The ``model_metadata.json`` ``name`` of ``files``; raises :class:`ArchiveError` naming
+    it (for JSON nested too deeply to read too)."""
+    try:
+        return parse_metadata(files[name])
+    except MetadataError as exc:
+        raise ArchiveError(f"{name}: {exc}") from None
+    except RecursionError:
+        raise ArchiveError(f"{name}: nested too deeply to read") from None
 
 
 def _refuse_constant(name: str) -> object:
@@ -307,12 +320,13 @@ def import_virtual_model(
 
     Raises :class:`ArchiveError` naming the file at fault.
     """
-    files = read_archive(upload, limits)
+    return virtual_model(read_archive(upload, limits))
+
+
+def virtual_model(files: Mapping[str, bytes]) -> ImportedModel:
+    """:func:`import_virtual_model` of an archive already read by :func:`read_archive`."""
     meta_name = _find(files, "model/model_metadata.json", "model_metadata.json")
-    try:
-        metadata = parse_metadata(files[meta_name])
-    except MetadataError as exc:
-        raise ArchiveError(f"{meta_name}: {exc}") from None
+    metadata = read_metadata(files, meta_name)
     hp_name = _find(files, "ip/hyperparameters.json", "hyperparameters.json")
     try:
         hyperparameters = parse_hyperparameters(

@@ -35,17 +35,20 @@ from typing import BinaryIO
 from training.interchange.archive import (
     EXTRA_SUFFIXES,
     ArchiveError,
+    ImportedModel,
     ImportLimits,
     read_archive,
     read_json,
+    read_metadata,
     reward_source,
+    virtual_model,
 )
 from training.interchange.checkpointimport import policy_from_checkpoint
 from training.interchange.graphimport import GraphImportError, policy_from_graph
 from training.interchange.tfcheckpoint import CheckpointFormatError, read_checkpoint
 from training.rl.checkpoints import checkpoint_bytes
 from training.rl.hyperparams import HyperparameterError, Hyperparameters, parse_hyperparameters
-from training.rl.metadata import MetadataError, ModelMetadata, parse_metadata
+from training.rl.metadata import ModelMetadata
 
 _GRAPH_RE = re.compile(r"^model/model_(\d+)\.pb$")
 _INDEX_RE = re.compile(r"^model/(\d+)_Step-\d+\.ckpt\.index$")
@@ -77,10 +80,7 @@ def _metadata(files: Mapping[str, bytes], *names: str) -> tuple[str, ModelMetada
     name = next((n for n in names if n in files), None)
     if name is None:
         raise ArchiveError(f"model_metadata.json is missing (looked for {', '.join(names)})")
-    try:
-        return name, parse_metadata(files[name])
-    except MetadataError as exc:
-        raise ArchiveError(f"{name}: {exc}") from None
+    return name, read_metadata(files, name)
 
 
 def _convert(name: str, graph: bytes, metadata: ModelMetadata) -> tuple[ModelMetadata, bytes]:
@@ -222,4 +222,22 @@ def import_deepracer_upload(
     ``reward_function.py``; anything else is read as a car model. Raises :class:`ArchiveError`.
     """
     files = read_archive(upload, limits)
+    return _model_folder(files) if "reward_function.py" in files else _car_model(files)
+
+
+DEEPRACER_SUFFIXES = (".pb", ".ckpt.index", ".index")
+
+
+def import_model_upload(
+    upload: bytes | BinaryIO, limits: ImportLimits | None = None
+) -> ImportedModel | ImportedDeepRacerModel:
+    """Any model upload: Racecraft's virtual model, else (when it holds a frozen graph or
+    TensorFlow checkpoints) a DeepRacer one. The archive is read once. Raises
+    :class:`ArchiveError`: Racecraft's reason for an upload with no DeepRacer files."""
+    files = read_archive(upload, limits)
+    try:
+        return virtual_model(files)
+    except ArchiveError as exc:
+        if not any(name.endswith(DEEPRACER_SUFFIXES) for name in files):
+            raise exc from None
     return _model_folder(files) if "reward_function.py" in files else _car_model(files)

@@ -161,7 +161,10 @@ def uploads_prune(*, older_than_s: float = UPLOAD_MAX_AGE_S) -> int:
 
 
 def model_import_run(*, owner_id: int, name: str, description: str, upload_key: str) -> dict:
-    """In the worker: import the stored upload (all or nothing), then remove it."""
+    """In the worker: import the stored upload (all or nothing), then remove it. The archive
+    is read and converted in a bounded child process (see
+    :func:`~training.services.models.model_import`); the rows and store writes happen here.
+    Every failure comes back as a sentence with its reason."""
     try:
         owner = get_user_model().objects.get(pk=owner_id)
         try:
@@ -173,6 +176,10 @@ def model_import_run(*, owner_id: int, name: str, description: str, upload_key: 
         model = model_import(owner=owner, name=name, upload=data, description=description)
     except ServiceError as exc:
         return {"ok": False, "error": exc.sentence, "field": exc.field}
+    except (RecursionError, MemoryError) as exc:  # in the worker itself, not the child
+        log.warning("the import of %s failed", upload_key, exc_info=True)
+        reason = "data nested too deeply" if isinstance(exc, RecursionError) else "out of memory"
+        return {"ok": False, "error": f"The import failed ({reason}).", "field": "archive"}
     finally:
         _forget_upload(upload_key)
     note = getattr(model, "import_note", "")

@@ -32,13 +32,9 @@ from contextlib import contextmanager
 from django.db import transaction
 
 from training.errors import ServiceError
-from training.interchange.archive import (
-    ArchiveError,
-    ImportedModel,
-    import_virtual_model,
-    read_archive,
-)
-from training.interchange.deepracer import ImportedDeepRacerModel, import_deepracer_upload
+from training.interchange.archive import ArchiveError, ImportedModel, ImportLimits
+from training.interchange.bounded import import_upload
+from training.interchange.deepracer import ImportedDeepRacerModel
 from training.models import RaceType, RacingModel
 from training.rewards.examples import DEFAULT_EXAMPLE, example_source
 from training.rl.hyperparams import defaults_for
@@ -427,23 +423,32 @@ def model_import(*, owner, name: str, upload, description: str = "") -> RacingMo
     return model
 
 
+class ArchiveRefused(ServiceError):
+    """An upload that cannot be imported. Its message often starts with the file at fault
+    (``agent/model.pb: ...``), whose name keeps its case in the sentence."""
+
+    @property
+    def sentence(self) -> str:
+        first = self.message.split(" ", 1)[0].rstrip(":")
+        if any(mark in first for mark in "/._"):  # a file name, not a word
+            return self.message
+        return super().sentence
+
+
 def _read_model_upload(upload) -> tuple[ImportedModel | ImportedDeepRacerModel, str]:
     """The upload as Racecraft's virtual model, else as a DeepRacer model (it has a frozen
-    graph or TensorFlow checkpoints), and a note for the model's description."""
-    data = upload if isinstance(upload, bytes) else upload.read()
+    graph or TensorFlow checkpoints), and a note for the model's description. Read and
+    converted in a bounded child process (:mod:`training.interchange.bounded`: memory, CPU
+    and time limits; its memory goes back to the system when it ends); only the result comes
+    back here. Raises :class:`ArchiveRefused` with the reason."""
+    limits = ImportLimits()
+    data = upload if isinstance(upload, bytes) else upload.read(limits.max_upload_bytes + 1)
     try:
-        return import_virtual_model(data), ""
+        imported = import_upload(data, limits=limits)
     except ArchiveError as exc:
-        racecraft_error = exc
-    try:
-        deepracer_files = any(
-            n.endswith((".pb", ".ckpt.index", ".index")) for n in read_archive(data)
-        )
-        if not deepracer_files:
-            raise racecraft_error
-        imported = import_deepracer_upload(data)
-    except ArchiveError as exc:
-        raise ServiceError(str(exc), field="archive") from None
+        raise ArchiveRefused(str(exc), field="archive") from None
+    if not isinstance(imported, ImportedDeepRacerModel):
+        return imported, ""
     note = f"Imported from DeepRacer's {imported.source}."
     if imported.value_head_fresh:
         note += " The policy is DeepRacer's; training it further starts the value function fresh."
