@@ -22,7 +22,7 @@ from training.sandbox.requirements import LAYER_HELP, layer_active
 TAG = "sandbox"
 #: Layers worth a warning when missing even if others cover for them (defence in depth);
 #: the pids cgroup and RLIMIT_NPROC stand in for each other (root vs. other users).
-CORE_LAYERS = ("namespaces", "rlimits", "no_new_privs", "landlock", "seccomp")
+CORE_LAYERS = ("namespaces", "rlimits", "no_new_privs", "landlock", "seccomp", "cgroup_memory")
 
 
 @lru_cache(maxsize=1)

@@ -27,6 +27,7 @@ from training.rollout.vecenv import (
     RolloutError,
     _WorkerVecEnv,
     first_envs,
+    reply_timeout,
 )
 from training.sandbox import SandboxCrashed, SandboxProcess, checked
 from training.sandbox.protocol import ProtocolError, decode, encode
@@ -105,7 +106,8 @@ def serve_rollout(*, redis_url: str, prefix: str, session: str, slot: int, args:
             if msg.get("cmd") == "close":
                 return "closed"
             try:
-                reply = worker.recv(timeout=STEP_TIMEOUT_S)
+                cmd = str(msg.get("cmd"))
+                reply = worker.recv(timeout=reply_timeout(cmd, args["num_envs"], worker.limits))
             except SandboxCrashed as exc:
                 _push(client, reply_key, {"kind": "error", "message": str(exc)})
                 return "failed"

@@ -30,6 +30,23 @@ ROLLOUT_LIMITS = SandboxLimits(
 """A rollout worker: a second per reward call, 3 GiB more than its imports, a day of CPU."""
 
 STEP_TIMEOUT_S = 60.0
+"""The trainer's wait for a remote worker's reply through Redis (network and queueing)."""
+STEP_SLACK_S = 5.0
+"""What a step of a worker's envs may take beyond its reward calls (physics, cameras)."""
+RESET_SLACK_S = 30.0
+"""What a reset may take beyond loading and calling the reward (placing objects, a slow start)."""
+
+
+def reply_timeout(cmd: str, size: int, limits: SandboxLimits) -> float:
+    """Seconds a worker hosting ``size`` envs has to answer ``cmd``, on the trainer's clock:
+    one reward call per env and step, each within ``limits.per_call_seconds`` (a reset may
+    also load the user's module once per env), plus slack for the simulator. The child's own
+    heartbeat cannot stretch it."""
+    calls = size * (2 if cmd == "reset" else 1)
+    slack = RESET_SLACK_S if cmd == "reset" else STEP_SLACK_S
+    return calls * limits.per_call_seconds + slack
+
+
 #: The keys of a compact info (training.rollout.envs.compact_info) a worker may send.
 INFO_KEYS = frozenset(
     {"status", "progress", "lap", "trace", "TimeLimit.truncated", "lap_times", "frame",
@@ -250,6 +267,7 @@ class SandboxedVecEnv(_WorkerVecEnv):
         num_workers: int = 2,
         limits: SandboxLimits = ROLLOUT_LIMITS,
         phase: str = "training",
+        python_guards: bool = True,
     ) -> None:
         if num_envs < 1:
             raise ValueError("num_envs must be at least 1")
@@ -277,6 +295,7 @@ class SandboxedVecEnv(_WorkerVecEnv):
                         "first_env": first,
                     },
                     limits=limits,
+                    python_guards=python_guards,  # False in tests only: the OS layers alone
                 )
                 worker.launch()  # the workers load at once, each on its own core
                 self.workers.append(worker)
@@ -296,9 +315,9 @@ class SandboxedVecEnv(_WorkerVecEnv):
             except SandboxCrashed as exc:
                 raise RolloutError(str(exc)) from exc
         replies = []
-        for worker in self.workers:
+        for worker, msg, size in zip(self.workers, messages, self.sizes, strict=True):
             try:
-                reply = worker.recv(timeout=STEP_TIMEOUT_S)
+                reply = worker.recv(timeout=reply_timeout(msg["cmd"], size, worker.limits))
             except SandboxCrashed as exc:
                 raise RolloutError(str(exc)) from exc
             if reply.kind != "message" or not isinstance(reply.value, dict):

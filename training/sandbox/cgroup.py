@@ -1,10 +1,15 @@
-"""A pids cgroup per sandbox child: the fallback that refuses new processes when seccomp is
-missing and the caller is root (RLIMIT_NPROC never applies to uid 0).
+"""A cgroup per sandbox child, one per controller: ``pids`` (the fallback that refuses new
+processes when seccomp is missing and the caller is root: RLIMIT_NPROC never applies to uid
+0) and ``memory`` (a limit the kernel enforces on everything the child holds: anonymous
+memory, System V and POSIX shared memory, page cache, kernel memory; the address-space rlimit
+misses what is not mapped).
 
-The parent creates ``racecraft-sandbox-<pid>`` beside its own pids cgroup (v1, or v2 with
-the pids controller delegated), sets ``pids.max`` and moves the child in before the child
-receives its job, so before any user code runs. Needs write access to the cgroup tree
-(root, or a delegated subtree); otherwise the layer reports why it is unavailable.
+The parent creates ``racecraft-sandbox-<pid>`` beside its own cgroup of that controller (v1,
+or v2 with the controller delegated to the parent's cgroup), sets the limit and moves the
+child in before the child receives its job, so before any user code runs. Needs write access
+to the cgroup tree (root, or a delegated subtree); otherwise the layer reports why it is
+unavailable and the sandbox relies on the other layers that give the same protection
+(:mod:`training.sandbox.requirements`).
 """
 
 from __future__ import annotations
@@ -13,8 +18,8 @@ import contextlib
 import os
 from pathlib import Path
 
-V1_ROOT = Path("/sys/fs/cgroup/pids")
-V2_ROOT = Path("/sys/fs/cgroup")
+ROOT = Path("/sys/fs/cgroup")
+PREFIX = "racecraft-sandbox-"
 
 
 def _own_cgroup(controller: str | None) -> str | None:
@@ -28,21 +33,20 @@ def _own_cgroup(controller: str | None) -> str | None:
     return None
 
 
-def _base() -> Path | None:
-    if (V1_ROOT / "cgroup.procs").exists():
-        own = _own_cgroup("pids")
-        return V1_ROOT / own.lstrip("/") if own is not None else None
-    if (V2_ROOT / "cgroup.controllers").exists():
+def _base(controller: str) -> tuple[Path, int] | None:
+    """The folder to create the child's cgroup in, and the cgroup version (1 or 2)."""
+    v1 = ROOT / controller
+    if (v1 / "cgroup.procs").exists():
+        own = _own_cgroup(controller)
+        return (v1 / own.lstrip("/"), 1) if own is not None else None
+    if (ROOT / "cgroup.controllers").exists():
         own = _own_cgroup(None)
         if own is None:
             return None
-        parent = V2_ROOT / own.lstrip("/")
-        if "pids" in (parent / "cgroup.subtree_control").read_text().split():
-            return parent
+        parent = ROOT / own.lstrip("/")
+        if controller in (parent / "cgroup.subtree_control").read_text().split():
+            return parent, 2
     return None
-
-
-PREFIX = "racecraft-sandbox-"
 
 
 def _sweep(base: Path) -> None:
@@ -62,28 +66,35 @@ def _alive(pid: int) -> bool:
         return False
 
 
-class PidsCgroup:
+class ChildCgroup:
     """``confine(pid)`` returns None when the child is confined, else the reason not;
-    ``remove()`` deletes the cgroup once the child is gone."""
+    ``remove()`` deletes the cgroup once the child is gone. Subclasses name the controller
+    and write its limits (:meth:`_limit`)."""
 
-    def __init__(self, max_pids: int) -> None:
-        self.max_pids = max_pids
+    controller = ""
+
+    def __init__(self) -> None:
         self.path: Path | None = None
+        self.version = 0
+
+    def _limit(self, path: Path) -> None:
+        raise NotImplementedError
 
     def confine(self, pid: int) -> str | None:
         try:
-            base = _base()
-            if base is None:
-                return "no pids cgroup controller available"
+            found = _base(self.controller)
+            if found is None:
+                return f"no {self.controller} cgroup controller available"
+            base, self.version = found
             _sweep(base)
             path = base / f"{PREFIX}{pid}"
             path.mkdir()
             self.path = path
-            (path / "pids.max").write_text(str(self.max_pids))
+            self._limit(path)
             (path / "cgroup.procs").write_text(str(pid))
         except OSError as exc:
             self.remove()
-            return f"cannot use the pids cgroup: {exc.strerror or exc}"
+            return f"cannot use the {self.controller} cgroup: {exc.strerror or exc}"
         return None
 
     def remove(self) -> None:
@@ -91,3 +102,90 @@ class PidsCgroup:
             with contextlib.suppress(OSError):
                 os.rmdir(self.path)
             self.path = None
+
+
+class PidsCgroup(ChildCgroup):
+    """At most ``max_pids`` processes and threads in the child's cgroup."""
+
+    controller = "pids"
+
+    def __init__(self, max_pids: int) -> None:
+        super().__init__()
+        self.max_pids = max_pids
+
+    def _limit(self, path: Path) -> None:
+        (path / "pids.max").write_text(str(self.max_pids))
+
+
+class MemoryCgroup(ChildCgroup):
+    """A hard memory limit on the child's cgroup, without swap: ``limit_bytes`` at first (the
+    child's imports, our own code), then :meth:`tighten` to what it holds plus its allowance
+    once it is locked down and before it loads user code. Past the limit the kernel reclaims,
+    then kills the child (:meth:`oom_killed` says whether it did)."""
+
+    controller = "memory"
+
+    def __init__(self, limit_bytes: int) -> None:
+        super().__init__()
+        self.limit_bytes = limit_bytes
+
+    def _files(self) -> tuple[str, str, str]:
+        """(limit, swap limit, usage) file names of this cgroup version."""
+        if self.version == 1:
+            return "memory.limit_in_bytes", "memory.memsw.limit_in_bytes", "memory.usage_in_bytes"
+        return "memory.max", "memory.swap.max", "memory.current"
+
+    def _limit(self, path: Path) -> None:
+        self._set(path, self.limit_bytes)
+
+    def _set(self, path: Path, limit: int) -> None:
+        limit_file, swap_file, _ = self._files()
+        if self.version == 1:
+            # memsw (memory + swap) may not go below memory, nor memory above memsw: order.
+            current = int((path / limit_file).read_text())
+            pairs = [(limit_file, limit), (swap_file, limit)]
+            if limit > current:
+                pairs.reverse()
+            for name, value in pairs:
+                if (path / name).exists():
+                    (path / name).write_text(str(value))
+        else:
+            (path / limit_file).write_text(str(limit))
+            if (path / swap_file).exists():
+                (path / swap_file).write_text("0")
+        self.limit_bytes = limit
+
+    def usage(self) -> int | None:
+        """Bytes the child's cgroup holds now, or None when it is not confined."""
+        if self.path is None:
+            return None
+        try:
+            return int((self.path / self._files()[2]).read_text())
+        except (OSError, ValueError):
+            return None
+
+    def tighten(self, allowance: int) -> str | None:
+        """Limit the cgroup to its current usage plus ``allowance`` bytes (never above the
+        first limit); None when done, else why not."""
+        used = self.usage()
+        if self.path is None or used is None:
+            return "not confined"
+        try:
+            self._set(self.path, min(self.limit_bytes, used + allowance))
+        except OSError as exc:
+            return f"cannot set the memory limit: {exc.strerror or exc}"
+        return None
+
+    def oom_killed(self) -> bool:
+        """Whether the kernel killed a process of this cgroup for memory."""
+        if self.path is None:
+            return False
+        name = "memory.oom_control" if self.version == 1 else "memory.events"
+        try:
+            for line in (self.path / name).read_text().splitlines():
+                key, _, value = line.partition(" ")
+                if key == "oom_kill" and value.strip().isdigit() and int(value) > 0:
+                    return True
+        except OSError:
+            return False
+        return False

@@ -1,11 +1,12 @@
 """Entry point of a sandbox child process (``python -E -s -B -c BOOT ...``).
 
-Sequence: clean environment, close inherited fds, new namespaces (while single-threaded),
-read the job, import the allowed libraries and the target, run the target's ``prepare``,
-apply rlimits, no_new_privs, Landlock and seccomp, check that every protection the user code
-must not escape is in force (:mod:`training.sandbox.requirements`; else refuse, fail closed),
-report the layers, then load the user's module and run the target with the guarded reward
-callable. Nothing here trusts the user code: after it has run,
+Sequence: clean environment, close inherited fds, read the job, new namespaces (while
+single-threaded; a fork makes the rest PID 1 of a new PID namespace), import the allowed
+libraries and the target, run the target's ``prepare``, apply rlimits, no_new_privs, Landlock
+and seccomp, check that every protection the user code must not escape is in force
+(:mod:`training.sandbox.requirements`; else refuse, fail closed), report the layers, wait for
+the parent's go (it tightens the memory cgroup first), then load the user's module and run the
+target with the guarded reward callable. Nothing here trusts the user code: after it has run,
 the parent treats everything this process says as untrusted.
 """
 
@@ -109,9 +110,11 @@ class SandboxContext:
         return RewardCallable(fn, hb)
 
 
-def _die_with_parent(parent_pid: int) -> None:
+def _die_with_parent(parent_pid: int | None) -> None:
+    """SIGKILL when the parent goes; ``parent_pid`` None after the fork into the PID
+    namespace, where the parent (outside it) has no pid to compare."""
     ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    if os.getppid() != parent_pid:
+    if parent_pid is not None and os.getppid() != parent_pid:
         os._exit(1)
 
 
@@ -139,8 +142,10 @@ def _main(argv: list[str]) -> None:
     if "namespaces" in skip:
         layers["namespaces"] = "disabled (test only)"
     else:
-        ns = lockdown.unshare_namespaces()
+        ns = lockdown.unshare_namespaces()  # from here on, PID 1 of a new PID namespace
         layers["namespaces"] = lockdown.ACTIVE if ns is None else f"unavailable: {ns}"
+        if ns is None:
+            _die_with_parent(None)
     limits = SandboxLimits.from_dict(job["limits"])
     hb_map = mmap.mmap(hb_fd, HEARTBEAT_BYTES)
     os.close(hb_fd)
@@ -165,6 +170,7 @@ def _main(argv: list[str]) -> None:
     guards = bool(job.get("python_guards", True))
     layers["python_guards"] = lockdown.ACTIVE if guards else "disabled (test only)"
     layers["cgroup_pids"] = str(job.get("cgroup_pids", "unavailable: not reported"))
+    layers["cgroup_memory"] = str(job.get("cgroup_memory", "unavailable: not reported"))
     apply_simulation(layers, tuple(job.get("simulate_missing") or ()))
     # Fail closed: nothing of the user's is loaded unless every protection is in force.
     missing = [r.name for r in missing_requirements(layers)]
@@ -172,6 +178,11 @@ def _main(argv: list[str]) -> None:
         write_message(out, {"kind": "refused", "missing": missing, "layers": layers})
         os._exit(0)
     write_message(out, {"kind": "locked", "layers": layers})
+    # The parent sets the kernel's memory limit to what we hold now plus our allowance, then
+    # says go: nothing of the user's runs before that.
+    go = read_message_blocking(ctl_in)
+    if not isinstance(go, dict) or go.get("kind") != "go":
+        os._exit(0)
     output = install_output_capture(limits.max_output_chars)
     heartbeat[0] = 0
     heartbeat[1] = time.monotonic_ns()

@@ -17,7 +17,8 @@ class SandboxLimits:
         the size at lock-down plus this).
     open_files: RLIMIT_NOFILE.
     max_output_chars: characters of ``print`` output kept per process; the rest is dropped.
-    max_message_bytes: the parent refuses (and kills the child for) larger messages.
+    max_message_bytes: the parent refuses (and kills the child for) larger messages (their
+        JSON part is bounded further: :mod:`training.sandbox.protocol`).
     start_seconds: time allowed from spawn to ready (imports, lock-down, loading the module).
     allow_threads: let the child create threads (e.g. a rollout using torch intra-op threads);
         processes are refused either way.
@@ -29,7 +30,7 @@ class SandboxLimits:
     memory_bytes: int = 1 << 30
     open_files: int = 64
     max_output_chars: int = 64_000
-    max_message_bytes: int = 256 << 20
+    max_message_bytes: int = 32 << 20
     start_seconds: float = 30.0
     allow_threads: bool = False
     read_paths: tuple[str, ...] = field(default_factory=tuple)

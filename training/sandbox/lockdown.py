@@ -12,6 +12,7 @@ from __future__ import annotations
 import ctypes
 import os
 import resource
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -20,6 +21,7 @@ from training.sandbox import landlock, seccomp
 
 ACTIVE = "active"
 CLONE_NEWIPC = 0x08000000
+CLONE_NEWPID = 0x20000000
 CLONE_NEWUSER = 0x10000000
 CLONE_NEWNET = 0x40000000
 PR_SET_NO_NEW_PRIVS = 38
@@ -68,18 +70,51 @@ def close_inherited_fds(keep: set[int]) -> str | None:
 
 
 def unshare_namespaces() -> str | None:
-    """New network (no interfaces), IPC and, where possible, user namespace.
+    """New user (where possible), network (no interfaces), IPC (System V objects of its own,
+    gone with it) and PID namespaces; then fork: the rest of the child runs as PID 1 of the
+    new PID namespace, where no host process can be named (setpriority, sched_setaffinity,
+    kill and /proc lookups by pid see only the sandbox). The process that called this waits
+    for it and exits with its status (:func:`_wait_and_exit`); it runs no user code.
 
-    Unprivileged users need the user namespace to get the others; root gets the network and
-    IPC namespaces even where user namespaces are disabled.
+    Unprivileged users need the user namespace to get the others; root gets them even where
+    user namespaces are disabled. Must run single-threaded, with only the descriptors the
+    child needs open.
     """
     libc = _libc()
-    if libc.unshare(CLONE_NEWUSER | CLONE_NEWNET | CLONE_NEWIPC) == 0:
-        return None
-    first = os.strerror(ctypes.get_errno())
-    if libc.unshare(CLONE_NEWNET | CLONE_NEWIPC) == 0:
-        return None
-    return f"unshare failed: {first}"
+    others = CLONE_NEWNET | CLONE_NEWIPC | CLONE_NEWPID
+    if libc.unshare(CLONE_NEWUSER | others) != 0:
+        first = os.strerror(ctypes.get_errno())
+        if libc.unshare(others) != 0:
+            return f"unshare failed: {first}"
+    try:
+        pid = os.fork()
+    except OSError as exc:  # the namespaces exist but the PID one holds nobody: refuse
+        return f"fork into the new PID namespace failed: {exc.strerror or exc}"
+    if pid:
+        _wait_and_exit(pid)
+    return None
+
+
+def _wait_and_exit(pid: int) -> None:
+    """In the process outside the PID namespace: close every descriptor (the pipes are the
+    sandboxed process's alone), wait for it, and leave with its status, a signal as that
+    signal (so the parent's words for a SIGSYS or a SIGKILL stay right)."""
+    os.closerange(0, 1 << 16)
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    while True:
+        try:
+            _, status = os.waitpid(pid, 0)
+            break
+        except ChildProcessError:
+            os._exit(0)
+        except InterruptedError:
+            continue
+    if os.WIFSIGNALED(status):
+        sig = os.WTERMSIG(status)
+        signal.signal(sig, signal.SIG_DFL)
+        os.kill(os.getpid(), sig)
+        os.kill(os.getpid(), signal.SIGKILL)  # a signal whose default is to continue
+    os._exit(os.waitstatus_to_exitcode(status) & 0xFF)
 
 
 def set_rlimits(
@@ -206,6 +241,8 @@ def apply_all(
     else:
         record("landlock", "needs no_new_privs")
         record("seccomp", "needs no_new_privs")
+    bounded = report["rlimits"] == ACTIVE and report["seccomp"].startswith(ACTIVE)
+    record("address_space_limit", None if bounded else "needs rlimits and seccomp")
     scoped = report["landlock"] == ACTIVE and landlock.abi_version() >= landlock.SCOPE_ABI
     record("signal_scope", None if scoped else "needs Landlock ABI 6")
     locked = probe_limits_locked() if report["rlimits"] == ACTIVE else "the limits were not set"

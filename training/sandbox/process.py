@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from training.sandbox.cgroup import PidsCgroup
+from training.sandbox.cgroup import MemoryCgroup, PidsCgroup
 from training.sandbox.child import BOOT, HEARTBEAT_BYTES
 from training.sandbox.errors import (
     RewardError,
@@ -39,7 +39,7 @@ from training.sandbox.errors import (
 )
 from training.sandbox.limits import SandboxLimits
 from training.sandbox.lockdown import CHILD_ENV
-from training.sandbox.protocol import FrameReader, ProtocolError, encode
+from training.sandbox.protocol import FrameReader, ProtocolError, encode, write_with_deadline
 from training.sandbox.requirements import (
     REQUIREMENT_NAMES,
     REQUIREMENTS,
@@ -55,6 +55,10 @@ PACKAGE_ROOT = str(Path(__file__).resolve().parents[2])
 WATCHDOG_PERIOD_S = 0.02
 #: Added to the per-call limit for a reply to arrive (encoding, a loaded machine).
 CALL_SLACK_S = 2.0
+#: Memory a child may use for its imports and set-up (our code, before lock-down), on top of
+#: its limits' ``memory_bytes``; at lock-down the cgroup is tightened to what it then holds
+#: plus ``memory_bytes``.
+STARTUP_MEMORY_BYTES = 2 << 30
 
 _SIGNAL_WORDS = {
     signal.SIGKILL: "was killed (SIGKILL): the CPU-time limit, or the system ran out of memory",
@@ -125,6 +129,9 @@ class SandboxProcess:
         self._stop = threading.Event()
         self._watchdog: threading.Thread | None = None
         self._finished = False
+        self._oom = False
+        self._cgroup = PidsCgroup(2)
+        self._memory = MemoryCgroup(0)
 
     # -- life cycle --------------------------------------------------------------------------
     def start(self) -> dict[str, str]:
@@ -175,28 +182,35 @@ class SandboxProcess:
         finally:
             for fd in child_fds:
                 os.close(fd)
-        # Threads count as pids: the interpreter's main thread, plus room when allowed.
-        self._cgroup = PidsCgroup(64 if self.limits.allow_threads else 1)
-        cgroup_state = (
-            "disabled (test only)"
-            if "cgroup_pids" in self.disabled_layers
-            else _state(self._cgroup.confine(self._proc.pid))
-        )
+        # Threads count as pids: the waiter outside the PID namespace and the sandboxed
+        # process's main thread, plus room when threads are allowed.
+        self._cgroup = PidsCgroup(66 if self.limits.allow_threads else 2)
+        cgroup_state = self._confine("cgroup_pids", self._cgroup)
+        self._memory = MemoryCgroup(self.limits.memory_bytes + STARTUP_MEMORY_BYTES)
+        memory_state = self._confine("cgroup_memory", self._memory)
         self._reader = FrameReader(self._from_child, self.limits.max_message_bytes)
+        os.set_blocking(self._to_child, False)
         self._watchdog = threading.Thread(target=self._watch, name="sandbox-watchdog", daemon=True)
         self._watchdog.start()
         job = {
             "target": self.target, "prepare": self.prepare, "args": self.args,
             "limits": self.limits.to_dict(), "source": self.source,
             "python_guards": self.python_guards, "disabled_layers": list(self.disabled_layers),
-            "cgroup_pids": cgroup_state, "allow_weak": self.allow_weak,
+            "cgroup_pids": cgroup_state, "cgroup_memory": memory_state,
+            "allow_weak": self.allow_weak,
             "simulate_missing": list(simulated_missing()),
         }  # fmt: skip
         try:
-            self._write(job)
+            self._write(job, self.limits.start_seconds)
         except BaseException:
             self.close()
             raise
+
+    def _confine(self, layer: str, cgroup: PidsCgroup | MemoryCgroup) -> str:
+        assert self._proc is not None
+        if layer in self.disabled_layers:
+            return "disabled (test only)"
+        return _state(cgroup.confine(self._proc.pid))
 
     def wait_started(self) -> dict[str, str]:
         """After :meth:`launch`: wait for the lock-down report and the loaded module."""
@@ -229,12 +243,22 @@ class SandboxProcess:
             names = set(named) & REQUIREMENT_NAMES if isinstance(named, list) else set()
             missing = [r for r in REQUIREMENTS if r.name in names] or missing
             missing = missing or list(REQUIREMENTS)  # a refusal we cannot read: trust nothing
+        if kind == "locked" and self.layers.get("cgroup_memory") == "active":
+            # The kernel's limit: what the child holds now (its imports) plus its allowance.
+            tightened = self._memory.tighten(self.limits.memory_bytes)
+            if tightened is not None:
+                self.layers["cgroup_memory"] = _state(tightened)
+                missing = missing_requirements(self.layers)
         names = tuple(r.name for r in missing)
         if missing and (kind == "refused" or not self.allow_weak):
             raise SandboxUnavailable(describe_missing(missing), names)
         if missing:
             self.weak = names
             log.info("reward sandbox runs with weakened isolation: missing %s", names)
+        try:
+            self._write({"kind": "go"}, self.limits.start_seconds)
+        except OSError:
+            self._raise_dead("starting")
 
     def close(self, grace_seconds: float = 0.0) -> None:
         """Stop the child (after ``grace_seconds`` for a clean exit), reap it, stop the
@@ -251,7 +275,9 @@ class SandboxProcess:
             self._kill(None)
         if proc is not None:
             proc.wait()
+            self._oom = self._oom or self._memory.oom_killed()
             self._cgroup.remove()
+            self._memory.remove()
         self._stop.set()
         if self._watchdog is not None and self._watchdog is not threading.current_thread():
             self._watchdog.join()
@@ -270,9 +296,10 @@ class SandboxProcess:
 
     # -- messages ----------------------------------------------------------------------------
     def send(self, value: Any) -> None:
-        """Send ``value`` to the target's ``ctx.recv()``."""
+        """Send ``value`` to the target's ``ctx.recv()``; a child that does not take it within
+        the per-call limit (plus slack) is killed (:class:`SandboxTimeout`)."""
         try:
-            self._write({"value": value})
+            self._write({"value": value}, self.limits.per_call_seconds + CALL_SLACK_S)
         except OSError:
             self._raise_dead("receiving a message")
 
@@ -297,11 +324,18 @@ class SandboxProcess:
         raise SandboxProtocolError(self._describe_death())
 
     # -- internals ---------------------------------------------------------------------------
-    def _write(self, obj: Any) -> None:
-        data = memoryview(encode(obj))
-        while data:
-            n = os.write(self._to_child, data)
-            data = data[n:]
+    def _write(self, obj: Any, timeout: float) -> None:
+        """Write one message within ``timeout`` seconds (and the overall deadline): a child
+        that stops reading (a full pipe it never drains) is killed, never waited for."""
+        deadline = time.monotonic() + timeout
+        if self._deadline is not None:
+            deadline = min(deadline, self._deadline)
+        try:
+            write_with_deadline(self._to_child, encode(obj), deadline)
+        except TimeoutError:
+            self._overran = True
+            self._kill(f"it stopped reading what it was sent for {timeout:g} s")
+            raise SandboxTimeout(self._describe_death()) from None
 
     def _overall(self) -> str:
         return f"it ran past its overall limit of {self.deadline_seconds:g} s"
@@ -358,8 +392,12 @@ class SandboxProcess:
     def _describe_death(self) -> str:
         proc = self._proc
         code = proc.wait() if proc is not None else None
+        self._oom = self._oom or self._memory.oom_killed()
         if self._kill_reason:
             why = self._kill_reason
+        elif self._oom:
+            mb = self.limits.memory_bytes / (1 << 20)
+            why = f"it used more than its memory limit ({mb:,.0f} MB beyond its start-up)"
         elif code is not None and code < 0:
             sig = signal.Signals(-code)
             why = _SIGNAL_WORDS.get(sig, f"was stopped by signal {sig.name}")
@@ -395,8 +433,11 @@ class SandboxProcess:
                 self._kill(self._overall())
                 return
             mark = (self._hb[0], self._hb[1])
-            if mark != seen:
-                seen, since = mark, now
+            # A call starts when the step moves on or the start stamp goes from 0 to set; a
+            # stamp refreshed within one call does not restart its clock.
+            if mark[0] != seen[0] or (mark[1] and not seen[1]):
+                since = now
+            seen = mark
             if mark[1] and now - since > limit:
                 step = mark[0]
                 what = f"reward_function at step {step}" if step else "loading the module"

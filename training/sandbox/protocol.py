@@ -4,6 +4,12 @@ A frame is ``u32 length`` + ``u32 header length`` + a JSON header + raw array bu
 plain-dtype numpy buffers only: the parent never unpickles anything the child sends (that would
 hand the child code execution in the parent). Arrays appear in the JSON as
 ``{"__ndarray__": index, "dtype": "float32", "shape": [...]}``.
+
+Nothing a child sends is trusted, so :func:`decode` bounds a frame before it builds anything:
+the JSON header's size (:data:`MAX_HEADER_BYTES`), how many containers and items it may declare
+(counted on the raw bytes, so a header of nested empty lists is refused before one list exists;
+a JSON value costs far more memory than its bytes), the nesting depth, and the arrays' count and
+shapes against the bytes that came with them.
 """
 
 from __future__ import annotations
@@ -18,6 +24,16 @@ from typing import Any
 import numpy as np
 
 _U32 = struct.Struct(">I")
+#: The JSON part of one frame; arrays travel beside it as raw bytes.
+MAX_HEADER_BYTES = 4 << 20
+#: Lists and objects one header may hold (``[`` and ``{`` bytes, strings included).
+MAX_CONTAINERS = 50_000
+#: Items one header may hold (``,`` and ``:`` bytes, strings included).
+MAX_ITEMS = 500_000
+#: Nesting of lists and objects.
+MAX_DEPTH = 32
+#: Arrays in one frame.
+MAX_ARRAYS = 256
 ALLOWED_DTYPES = frozenset(
     {
         "bool",
@@ -78,15 +94,42 @@ def _decode_value(value: Any, arrays: list[np.ndarray]) -> Any:
     return value
 
 
+def check_header(raw: bytes) -> None:
+    """Refuse a JSON header too large or declaring too many values, before it is parsed.
+
+    The counts are taken on the bytes (``bytes.count`` in C), so a bracket inside a string
+    counts too: the bounds are generous and can only over-count."""
+    if len(raw) > MAX_HEADER_BYTES:
+        raise ProtocolError(
+            f"a header of {len(raw):,} bytes is over the {MAX_HEADER_BYTES:,} limit"
+        )
+    containers = raw.count(b"[") + raw.count(b"{")
+    if containers > MAX_CONTAINERS:
+        raise ProtocolError(f"{containers:,} lists or objects; at most {MAX_CONTAINERS:,}")
+    items = raw.count(b",") + raw.count(b":")
+    if items > MAX_ITEMS:
+        raise ProtocolError(f"{items:,} values; at most {MAX_ITEMS:,}")
+
+
 def decode(body: bytes) -> Any:
     """The message of a frame body (without its length prefix); ProtocolError if malformed."""
     try:
         (hlen,) = _U32.unpack_from(body, 0)
-        header = json.loads(body[4 : 4 + hlen])
+        if hlen > len(body) - 4:
+            raise ProtocolError("frame length mismatch")
+        raw = body[4 : 4 + hlen]
+        check_header(raw)
+        header = json.loads(raw)
+        if not isinstance(header, dict) or not isinstance(header.get("b"), list):
+            raise ProtocolError("not a frame header")
         offset = 4 + hlen
         specs: list[dict[str, Any]] = []
-        _collect_specs(header["m"], specs)
+        _collect_specs(header.get("m"), specs)
+        if len(header["b"]) > MAX_ARRAYS or len(specs) > MAX_ARRAYS:
+            raise ProtocolError(f"more than {MAX_ARRAYS} arrays")
         sizes = [int(n) for n in header["b"]]
+        if any(n < 0 for n in sizes) or offset + sum(sizes) != len(body):
+            raise ProtocolError("frame length mismatch")
         arrays: list[np.ndarray] = []
         for size in sizes:
             arrays.append(np.frombuffer(body, dtype=np.uint8, count=size, offset=offset))
@@ -99,6 +142,8 @@ def decode(body: bytes) -> Any:
             if dtype not in ALLOWED_DTYPES:
                 raise ProtocolError(f"dtype {dtype!r} refused")
             shape = tuple(int(n) for n in spec["shape"])
+            if len(shape) > MAX_DEPTH or any(n < 0 for n in shape):
+                raise ProtocolError("bad array shape")
             arrays[i] = arrays[i].view(dtype).reshape(shape).copy()
         return _decode_value(header["m"], arrays)
     except ProtocolError:
@@ -108,15 +153,19 @@ def decode(body: bytes) -> Any:
 
 
 def _collect_specs(value: Any, out: list[dict[str, Any]]) -> None:
-    if isinstance(value, dict):
-        if "__ndarray__" in value:
-            out.append(value)
-        else:
-            for v in value.values():
-                _collect_specs(v, out)
-    elif isinstance(value, list):
-        for v in value:
-            _collect_specs(v, out)
+    """The array placeholders in ``value``, walked without recursion; refuses a nesting
+    deeper than :data:`MAX_DEPTH`."""
+    stack: list[tuple[Any, int]] = [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict | list):
+            if depth >= MAX_DEPTH:
+                raise ProtocolError(f"nested more than {MAX_DEPTH} deep")
+            if isinstance(item, dict) and "__ndarray__" in item:
+                out.append(item)
+                continue
+            children = item.values() if isinstance(item, dict) else item
+            stack.extend((child, depth + 1) for child in children)
 
 
 def write_message(fd: int, message: Any) -> None:
@@ -125,6 +174,29 @@ def write_message(fd: int, message: Any) -> None:
     while data:
         n = os.write(fd, data)
         data = data[n:]
+
+
+def write_with_deadline(fd: int, data: bytes, deadline: float | None) -> None:
+    """Write all of ``data`` to a non-blocking ``fd`` by ``deadline`` (monotonic seconds, None
+    for no deadline). Raises TimeoutError when the reader stops taking data (a full pipe it
+    never drains, or one it shrank), BrokenPipeError when it is gone."""
+    view = memoryview(data)
+    poller = select.poll()
+    poller.register(fd, select.POLLOUT | select.POLLERR | select.POLLHUP)
+    while view:
+        try:
+            n = os.write(fd, view)
+        except BlockingIOError:
+            n = 0
+        view = view[n:]
+        if not view:
+            return
+        wait = None if deadline is None else deadline - time.monotonic()
+        if wait is not None and wait <= 0:
+            raise TimeoutError
+        events = poller.poll(None if wait is None else int(wait * 1000) + 1)
+        if any(ev & (select.POLLERR | select.POLLHUP) for _, ev in events):
+            raise BrokenPipeError("the reader closed the pipe")
 
 
 class FrameReader:

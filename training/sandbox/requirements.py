@@ -25,7 +25,7 @@ SIMULATED = "unavailable: simulated by " + SIMULATE_ENV
 #: How an operator gets each layer, in the words of a kernel or container setting.
 LAYER_HELP: dict[str, str] = {
     "namespaces": (
-        "user and network namespaces: run the worker as root or enable unprivileged user "
+        "user, network, IPC and PID namespaces: run the worker as root or enable unprivileged user "
         "namespaces (sysctl kernel.unprivileged_userns_clone=1, user.max_user_namespaces > 0); "
         "in Docker the default seccomp profile refuses unshare(), so run the worker with a "
         "profile that allows it"
@@ -46,6 +46,14 @@ LAYER_HELP: dict[str, str] = {
         "with the pids controller enabled"
     ),
     "nproc_limit": "RLIMIT_NPROC: run the worker as a user other than root",
+    "cgroup_memory": (
+        "a memory cgroup: run the worker as root, or give it a delegated cgroup v2 subtree "
+        "with the memory controller enabled"
+    ),
+    "address_space_limit": (
+        "RLIMIT_AS with seccomp refusing System V and POSIX shared memory and message queues "
+        "(both layers above)"
+    ),
     "limits_locked": (
         "hard rlimits the worker cannot raise: no CAP_SYS_RESOURCE in the worker, or seccomp"
     ),
@@ -69,6 +77,16 @@ REQUIREMENTS: tuple[Requirement, ...] = (
     ),
     Requirement("no_limit_raise", "no way to raise its resource limits", ("limits_locked",)),
     Requirement("no_signals", "no signals to other processes", ("seccomp", "signal_scope")),
+    Requirement(
+        "no_scheduling",
+        "no changes to other processes' priority, scheduling, CPU affinity or limits",
+        ("seccomp", "namespaces"),
+    ),
+    Requirement(
+        "memory_bound",
+        "a memory limit on everything it holds (shared memory included)",
+        ("cgroup_memory", "address_space_limit"),
+    ),
 )
 REQUIREMENT_NAMES = frozenset(r.name for r in REQUIREMENTS)
 

@@ -28,7 +28,12 @@ CPython, numpy and (for rollouts) PyBullet and torch, whose syscalls are many. W
   module loading, kexec, reboot, clock setting, memfd_create, open_by_handle_at;
 - its own limits and fate: setrlimit, prlimit64 with a new limit, and
   prctl(PR_SET_PDEATHSIG) (it cannot stop dying with its parent);
-- signals to other processes: kill/tgkill only to the child itself.
+- signals to other processes: kill/tgkill only to the child itself;
+- other processes' scheduling: setpriority, sched_setscheduler/setparam/setattr/setaffinity,
+  ioprio_set, prlimit64 and migrate_pages/move_pages on any process but itself (pid 0);
+- memory outside its address space: System V shared memory, message queues and semaphores,
+  POSIX message queues (with memfd_create above: nothing it holds escapes RLIMIT_AS);
+- shrinking its pipes (fcntl F_SETPIPE_SZ), which could stall a parent writing to it.
 
 A name the installed libseccomp does not know (a syscall newer than it) is skipped: Landlock
 still covers the filesystem ones; keeping libseccomp2 updated keeps the list whole.
@@ -72,7 +77,18 @@ DENIED_SYSCALLS: tuple[str, ...] = (
     "adjtimex", "clock_adjtime", "iopl", "ioperm", "quotactl", "syslog", "vhangup",
     "setuid", "setgid", "setreuid", "setregid", "setresuid", "setresgid", "setgroups",
     "capset", "setsid", "setpgid", "setrlimit",
+    "shmget", "shmat", "shmctl", "shmdt", "msgget", "msgsnd", "msgrcv", "msgctl", "semget",
+    "semop", "semtimedop", "semctl", "mq_open", "mq_unlink", "mq_timedsend",
+    "mq_timedreceive", "mq_notify", "mq_getsetattr", "kcmp",
 )  # fmt: skip
+#: Calls whose first argument names a process (0: the caller), refused for any other.
+PID_FIRST_SYSCALLS: tuple[str, ...] = (
+    "sched_setaffinity", "sched_setscheduler", "sched_setparam", "sched_setattr",
+    "prlimit64", "migrate_pages", "move_pages",
+)  # fmt: skip
+PRIO_PROCESS = 0
+IOPRIO_WHO_PROCESS = 1
+F_SETPIPE_SZ = 1031
 
 
 class _ArgCmp(ctypes.Structure):
@@ -172,6 +188,14 @@ def _build(
         else:
             f.rule(eperm, "clone")
         f.rule(eperm, "prlimit64", (2, SCMP_CMP_NE, 0, 0))  # setting, not reading, a limit
+        for name in PID_FIRST_SYSCALLS:
+            f.rule(eperm, name, (0, SCMP_CMP_NE, 0, 0))
+        # setpriority(which, who, nice) and ioprio_set(which, who, prio): only the caller, by
+        # 0 (rules on one syscall are OR-ed: a wrong ``which`` or a named ``who`` is refused).
+        for name, which in (("setpriority", PRIO_PROCESS), ("ioprio_set", IOPRIO_WHO_PROCESS)):
+            f.rule(eperm, name, (0, SCMP_CMP_NE, which, 0))
+            f.rule(eperm, name, (1, SCMP_CMP_NE, 0, 0))
+        f.rule(eperm, "fcntl", (1, SCMP_CMP_EQ, F_SETPIPE_SZ, 0))
         f.rule(eperm, "prctl", (0, SCMP_CMP_EQ, PR_SET_PDEATHSIG, 0))
         for name in ("kill", "tgkill"):  # the first argument must be our own pid
             f.rule(eperm, name, (0, SCMP_CMP_NE, own_pid, 0))

@@ -228,12 +228,13 @@ def test_the_child_dies_with_its_parent() -> None:
         time.sleep(0.05)
     gone = not psutil.pid_exists(child_pid) or psutil.Process(child_pid).status() == "zombie"
     assert gone
-    # The next sandbox sweeps the pids cgroup the killed parent could not remove.
-    from training.sandbox.cgroup import V1_ROOT
+    # The next sandbox sweeps the cgroups the killed parent could not remove.
+    from training.sandbox.cgroup import ROOT
 
     isolation_support()
-    if V1_ROOT.exists():
-        assert not list(V1_ROOT.glob(f"racecraft-sandbox-{child_pid}"))
+    for controller in ("pids", "memory"):
+        if (ROOT / controller).exists():
+            assert not list((ROOT / controller).rglob(f"racecraft-sandbox-{child_pid}"))
 
 
 # --- the in-child guard, exercised in-process ------------------------------------------------

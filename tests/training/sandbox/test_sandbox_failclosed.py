@@ -27,7 +27,17 @@ BREAKS = {
     "no_processes": "seccomp,cgroup_pids,nproc_limit",
     "no_limit_raise": "limits_locked",
     "no_signals": "seccomp,signal_scope",
+    "no_scheduling": "seccomp,namespaces",
+    "memory_bound": "cgroup_memory,address_space_limit",
 }
+
+
+def broken_by(layers: str) -> tuple[str, ...]:
+    """The protections none of whose layers is left when ``layers`` are missing."""
+    gone = set(layers.split(","))
+    return tuple(r.name for r in REQUIREMENTS if set(r.providers) <= gone)
+
+
 #: A module that never finishes loading: a refusal must come before it is loaded at all.
 NEVER_LOADS = "while True:\n    pass\n\ndef reward_function(params):\n    return 1.0\n"
 SLOW_LIMITS = SandboxLimits(per_call_seconds=120.0, cpu_seconds=300)
@@ -52,7 +62,8 @@ def test_validation_refuses_to_load_the_code(requirement, monkeypatch) -> None:
     monkeypatch.setenv(SIMULATE_ENV, BREAKS[requirement.name])
     with host_intact(), pytest.raises(SandboxUnavailable) as caught:
         evaluate_reward(NEVER_LOADS, [real_params()], limits=SLOW_LIMITS)
-    assert caught.value.missing == (requirement.name,)
+    assert caught.value.missing == broken_by(BREAKS[requirement.name])
+    assert requirement.name in caught.value.missing
     result = validate_reward_function(OK, TRACK_ID)
     (error,) = result.errors
     assert requirement.what in error.message
@@ -126,8 +137,10 @@ def test_the_system_check_reports_the_layers(settings, monkeypatch) -> None:
     assert not [m for m in messages if m.level >= ERROR]
     monkeypatch.setenv(SIMULATE_ENV, BREAKS["no_network"])
     checks._layers.cache_clear()
-    (error,) = [m for m in checks.isolation_messages() if m.level >= ERROR]
-    assert error.id == "racecraft.E012" and "no network" in error.msg
+    errors = [m for m in checks.isolation_messages() if m.level >= ERROR]
+    assert len(errors) == len(broken_by(BREAKS["no_network"]))  # one per missing protection
+    (error,) = [m for m in errors if "no network" in m.msg]
+    assert error.id == "racecraft.E012"
     assert "namespaces" in error.hint and "RACECRAFT_ALLOW_WEAK_SANDBOX=1" in error.hint
     settings.RACECRAFT_ALLOW_WEAK_SANDBOX = True
     levels = {m.id: m.level for m in checks.isolation_messages()}

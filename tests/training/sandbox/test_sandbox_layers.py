@@ -24,7 +24,8 @@ ATTACKS = {
     "read": "return float(len(open(SECRET).read()))",
     "fork": "pid = os.fork()\n    if pid == 0:\n        os._exit(0)",
     "connect": "socket.create_connection(('127.0.0.1', PORT), timeout=0.5)",
-    "kill_parent": "os.kill(os.getppid(), signal.SIGTERM)",
+    # The host's pid (in the sandbox's own PID namespace getppid() is 0: it has no parent).
+    "kill_parent": "os.kill(HOST_PID, signal.SIGTERM)",
     "environment": "assert 'RACECRAFT_LAYER_SECRET' not in os.environ\n    raise OSError('clean')",
 }
 
@@ -32,7 +33,8 @@ ATTACKS = {
 def _source(body: str, arena: dict) -> str:
     return (
         "import os, signal, socket\n"
-        f"CANARY, SECRET, PORT = {arena['canary']!r}, {arena['secret']!r}, {arena['port']}\n\n"
+        f"CANARY, SECRET, PORT = {arena['canary']!r}, {arena['secret']!r}, {arena['port']}\n"
+        f"HOST_PID = {os.getpid()}\n\n"
         f"def reward_function(params):\n    {body}\n    return 1.0\n"
     )
 
@@ -84,6 +86,11 @@ def test_attack_is_contained_with_a_layer_switched_off(
         )
     for name in off:
         assert result.layers[name] == "disabled (test only)"
+    if disabled == "seccomp" and attack == "kill_parent":
+        # The host's pid names no process in the sandbox's PID namespace, or is refused.
+        assert "ProcessLookupError" in result.errors[0].message or "PermissionError" in (
+            result.errors[0].message
+        )
     if disabled == "seccomp" and attack == "fork" and os.geteuid() == 0:
         assert result.layers["cgroup_pids"] == "active"  # root ignores RLIMIT_NPROC
     _assert_contained(result, arena)
@@ -114,7 +121,7 @@ def test_threads_allowed_mode_still_refuses_processes(arena: dict) -> None:
             _source(body, arena), [real_params()], limits=limits, python_guards=False
         )
     (err,) = result.errors
-    assert err.line == 9 and "PermissionError" in err.message  # the os.fork() line
+    assert err.line == 10 and "PermissionError" in err.message  # the os.fork() line
 
 
 CAPS_SCRIPT = """

@@ -8,5 +8,8 @@ import os
 
 
 def reward_function(params):
-    data = open(f"/proc/{os.getppid()}/environ", "rb").read()
-    raise ValueError(data)
+    # /proc is the host's: pid 1 there is the host's init, whose environment a parent shares;
+    # getppid() is 0 inside the sandbox's own PID namespace.
+    for pid in (1, os.getppid()):
+        data = open(f"/proc/{pid}/environ", "rb").read()
+        raise ValueError(data)
