@@ -39,11 +39,18 @@ def _address_space() -> int:
     return 2 * 1024**3  # no /proc: assume what the interpreter and torch take
 
 
-def main(folder: Path) -> int:
+def limit_self(folder: Path) -> dict:
+    """Read ``FOLDER/limits.json`` and apply the limits that come before any import: no core
+    files, CPU seconds, bytes written. Returns the limits."""
     limits = json.loads((folder / "limits.json").read_text())
     _limit(resource.RLIMIT_CORE, 0)
     _limit(resource.RLIMIT_CPU, limits["cpu_seconds"], limits["cpu_seconds"] + CPU_GRACE_S)
     _limit(resource.RLIMIT_FSIZE, limits["result_bytes"])
+    return limits
+
+
+def main(folder: Path) -> int:
+    limits = limit_self(folder)
 
     # Imported after the CPU and output limits, before the memory one: the address-space
     # limit is what the code occupies plus the budget, so the code must be loaded first.
