@@ -3,7 +3,9 @@ resets and penalties, per-lap results, EvaluationMetrics entries, a sim-trace (o
 lap, as DeepRacer writes it) and an MP4.
 
 No user code runs here: an evaluation drives the policy; the reward column of the sim-trace is
-0 (DeepRacer's evaluations do not train, so nothing reads it).
+0 (DeepRacer's evaluations do not train, so nothing reads it). It refuses to run in a process
+that ever loaded a reward function (:mod:`training.sandbox.taint`): a leaderboard's lap is
+never judged by a simulator the racer's code could have touched.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from racing.sensors import ground_for
 from racing.simtrace import TraceRow
 from racing.video import ChaseView
 from training.rollout.envs import EnvSpec, FrameGrabber, camera_image
+from training.sandbox.taint import refuse_if_tainted
 
 MIN_LAPS, MAX_LAPS = 3, 5
 DEFAULT_RESETS = 10_000
@@ -241,6 +244,7 @@ def evaluate(
     keeps what it measured); ``on_frame`` gets live JPEG frames (camera and chase view, 15 fps
     at most) while ``frames_wanted()`` says someone watches.
     """
+    refuse_if_tainted("An evaluation")  # the judge never shares a process with user code
     started = time.monotonic()
     env = evaluation_env(spec, settings)
     video = VideoWriter() if settings.record_video else None

@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from training.sandbox import landlock, lockdown, seccomp
+from training.sandbox import landlock, lockdown, seccomp, taint
 from training.sandbox.errors import RewardFunctionError
 from training.sandbox.guard import RewardCallable, install_output_capture, load_reward_function
 from training.sandbox.limits import SandboxLimits
@@ -184,6 +184,7 @@ def _main(argv: list[str]) -> None:
     if not isinstance(go, dict) or go.get("kind") != "go":
         os._exit(0)
     output = install_output_capture(limits.max_output_chars)
+    taint.mark()  # from here on, nothing in this process judges a lap for anyone
     heartbeat[0] = 0
     heartbeat[1] = time.monotonic_ns()
     try:
