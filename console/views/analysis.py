@@ -66,7 +66,7 @@ def replay_start(request: HttpRequest, model_id: int) -> JsonResponse:
         task = service.replay_start(model=model, iteration=int(body["iteration"]),
                                     episode=int(body["episode"]),
                                     source=str(body["reward_function"]))  # fmt: skip
-    except (ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError, RecursionError):  # RecursionError: nested JSON
         return JsonResponse({"error": "send iteration, episode and reward_function"}, status=400)
     except ServiceError as exc:
         return _refused(exc)

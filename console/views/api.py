@@ -102,6 +102,8 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
             payload = json.loads(request.body or b"{}")
         except ValueError:
             return _error("The request body is not valid JSON.")
+        except RecursionError:  # valid JSON nested past what the parser takes
+            return _error("The request body is nested too deeply to read.")
         if not isinstance(payload, dict):
             return _error("The request body must be a JSON object.")
     else:

@@ -136,3 +136,16 @@ def test_the_services_give_the_one_message_for_a_10_mb_source(alice) -> None:
     with pytest.raises(ArchiveError) as refused:
         reward_source({"reward_function.py": HUGE.encode()}, "reward_function.py")
     assert str(refused.value) == f"reward_function.py: {SOURCE_TOO_LONG}"
+
+
+def test_a_request_body_nested_too_deeply_is_refused_clearly(alice_client, alice_model) -> None:
+    deep = "[" * 100_000 + "]" * 100_000
+    response = alice_client.post(URL, deep, content_type="application/json")
+    assert response.status_code == 400
+    assert (
+        response.json()["errors"][0]["message"] == "The request body is nested too deeply to read."
+    )
+    replay = alice_client.post(
+        f"/models/{alice_model.pk}/analysis/replay/", deep, content_type="application/json"
+    )
+    assert replay.status_code == 400 and "reward_function" in replay.json()["error"]
