@@ -27,8 +27,9 @@ from training.sandbox.policy import (
     special_method_refused,
 )
 
-#: Levels of nested format specs read (``"{:{:...}}"``); ``str.format`` evaluates two and
-#: raises "Max string recursion exceeded" below that, so deeper fields are never read.
+#: Levels of nested format specs read (``"{:{:...}}"``). ``str.format`` evaluates one level
+#: (``"{0:{1}}"``) and raises "Max string recursion exceeded" below it: deeper fields are never
+#: read at run time, and reading them here would cost time quadratic in the source's length.
 MAX_FORMAT_NESTING = 4
 
 
@@ -89,8 +90,8 @@ class Checker:
     class machinery (metaclasses, special methods that change lookups, ``type(n, b, d)``).
 
     The tree is walked with a stack, not recursion: a deep source gets an answer, never a
-    RecursionError.
-    ``visit_<Node>`` methods see each node before its children, as ast.NodeVisitor would.
+    RecursionError. ``visit_<Node>`` methods see each node before its children, as
+    ast.NodeVisitor's would.
     """
 
     def __init__(self) -> None:
