@@ -118,6 +118,20 @@ def _clean(array: np.ndarray) -> tuple[np.ndarray, bool]:
     return rows, closed
 
 
+def _border_distances(points: np.ndarray, border: np.ndarray, closed: bool) -> np.ndarray:
+    """Each point's distance to the polyline through ``border`` (closed: back to its start).
+
+    The same numbers as ``shapely.distance(points, LineString(border))``, through an R-tree of
+    the border's segments: O(n log n) instead of every point against every segment (a dense
+    2 MB track file of 40,000 waypoints took minutes that way)."""
+    ring = np.vstack([border, border[:1]]) if closed else border
+    segments = shapely.linestrings(np.stack([ring[:-1], ring[1:]], axis=1))
+    which, dist = shapely.STRtree(segments).query_nearest(points, return_distance=True)
+    out = np.full(len(points), np.inf)
+    np.minimum.at(out, which[0], dist)  # ties list a point more than once
+    return out
+
+
 def _signed_area(points: np.ndarray) -> float:
     x, y = points[:, 0], points[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
@@ -246,10 +260,10 @@ class Track:
         return LinearRing(points) if self.closed else LineString(points)
 
     def _perpendicular_widths(self) -> np.ndarray:
-        inner = self._border_geometry(self.inner)
-        outer = self._border_geometry(self.outer)
         pts = shapely.points(self.centre)
-        width = shapely.distance(pts, inner) + shapely.distance(pts, outer)
+        width = _border_distances(pts, self.inner, self.closed) + _border_distances(
+            pts, self.outer, self.closed
+        )
         if np.median(width) < MIN_WIDTH_M:
             raise TrackError(
                 f"the track is {np.median(width):.2f} m wide; at least {MIN_WIDTH_M} m is needed"
