@@ -13,6 +13,7 @@ from tensorboard.compat.proto.tensor_shape_pb2 import TensorShapeProto
 
 from training.interchange.carmodel import build_car_archive
 from training.interchange.export import new_model
+from training.interchange.tfcheckpoint import TABLE_MAGIC, _entry_class
 from training.interchange.tfgraph import GraphWriter
 from training.rl.metadata import ModelMetadata, build_metadata
 from training.rl.policies import LEAN
@@ -102,3 +103,36 @@ def identity_chain(length: int) -> graph_pb2.GraphDef:
 
 def ones(shape: tuple[int, ...]) -> np.ndarray:
     return np.ones(shape, np.float32)
+
+
+def _varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        byte, value = value & 0x7F, value >> 7
+        out.append(byte | (0x80 if value else 0))
+        if not value:
+            return bytes(out)
+
+
+def _table_block(entries: list[tuple[bytes, bytes]]) -> bytes:
+    """One SSTable block, keys unshared, one restart point."""
+    body = b"".join(_varint(0) + _varint(len(k)) + _varint(len(v)) + k + v for k, v in entries)
+    return body + (0).to_bytes(4, "little") + (1).to_bytes(4, "little")
+
+
+def checkpoint_index(tensors: dict[str, tuple[list[int], int, int]]) -> bytes:
+    """A TensorFlow ``.index`` (an SSTable of ``BundleEntryProto``) declaring float32 tensors
+    ``name → (shape, offset, size)`` in shard 0, written by hand as TensorFlow lays it out."""
+    entry_class = _entry_class()
+    entries = [(b"", b"")]
+    for name, (shape, offset, size) in sorted(tensors.items()):
+        entry = entry_class(dtype=types_pb2.DT_FLOAT, shard_id=0, offset=offset, size=size)
+        entry.shape.dim.extend(TensorShapeProto.Dim(size=d) for d in shape)
+        entries.append((name.encode(), entry.SerializeToString()))
+    data = _table_block(entries)
+    trailer = b"\x00" + bytes(4)  # uncompressed, checksum unchecked
+    index = _table_block([(b"\xff", _varint(0) + _varint(len(data)))])
+    index_offset = len(data) + len(trailer)
+    handles = _varint(0) + _varint(0) + _varint(index_offset) + _varint(len(index))
+    footer = handles.ljust(40, b"\x00") + TABLE_MAGIC.to_bytes(8, "little")
+    return data + trailer + index + trailer + footer
