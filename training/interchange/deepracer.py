@@ -23,6 +23,10 @@ the policy is taken (a frozen graph holds nothing else, and DeepRacer's PPO valu
 its own convolutions, which Racecraft's shared network cannot hold), so the value function (PPO)
 or the critics (SAC) start fresh: :attr:`ImportedDeepRacerModel.value_head_fresh` says so.
 Every failure is an :class:`~training.interchange.archive.ArchiveError` naming the file.
+Graphs and checkpoints are measured before anything in them is built
+(:mod:`training.interchange.graphbudget`). :func:`import_model_upload` takes either kind of
+upload, or Racecraft's own; the worker runs it in a bounded child process
+(:mod:`training.interchange.bounded`).
 """
 
 from __future__ import annotations
