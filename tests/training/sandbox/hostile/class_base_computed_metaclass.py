@@ -8,6 +8,8 @@
 
 def reward_function(params):
     bases = [type(type(params))]
+
     class Meta(*bases):
         pass
+
     return 1.0
