@@ -3,7 +3,7 @@
 # mode: guarded
 # expect: TEST_FAILURE
 # match: may not derive from 'type'
-# line: 11
+# line: 12
 
 
 def reward_function(params):
