@@ -83,7 +83,7 @@ def matmul_chain(size: int, length: int, start: str = "x") -> graph_pb2.GraphDef
     times, from the input ``x`` (one row per image) or from ``A`` itself."""
     writer = GraphWriter()
     writer.placeholder("x", [-1, size])
-    writer.graph.node.append(fill("A", [size, size]))
+    writer.graph.node.append(fill("A", [size, size], 1.0 / size))  # rows stay at 1
     last = start
     for i in range(length):
         writer.graph.node.append(op("MatMul", f"mm{i}", last, "A", transpose_a=False))
