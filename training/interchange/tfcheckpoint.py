@@ -126,6 +126,8 @@ def read_index(index: bytes) -> dict[str, object]:
                 entry = entry_class()
                 try:
                     entry.ParseFromString(value)
+                except MemoryError:  # the import's memory limit, reported as such
+                    raise
                 except Exception as exc:  # protobuf's DecodeError and friends
                     raise CheckpointFormatError(f"{key!r}: a bad entry ({exc})") from None
                 entries[key.decode("utf-8", "replace")] = entry

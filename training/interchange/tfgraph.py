@@ -167,6 +167,8 @@ def parse_graph(data: bytes) -> graph_pb2.GraphDef:
     graph = graph_pb2.GraphDef()
     try:
         graph.ParseFromString(data)
+    except MemoryError:  # the import's memory limit, reported as such
+        raise
     except Exception as exc:  # protobuf raises DecodeError and friends
         raise GraphError(f"not a TensorFlow GraphDef ({type(exc).__name__})") from None
     if not graph.node:
@@ -190,6 +192,8 @@ def const_value(node: node_def_pb2.NodeDef) -> np.ndarray:
         raise GraphError(str(exc)) from None
     try:
         return tensor_util.make_ndarray(node.attr["value"].tensor)
+    except MemoryError:  # the import's memory limit, reported as such
+        raise
     except Exception as exc:  # a malformed TensorProto
         raise GraphError(f"{node.name}: unreadable constant ({exc})") from None
 
@@ -328,5 +332,7 @@ def run_graph(graph: graph_pb2.GraphDef, feeds: dict[str, np.ndarray], output: s
         except GraphBudgetError as exc:
             raise GraphError(str(exc)) from None
         except (ValueError, IndexError, TypeError, ZeroDivisionError, RuntimeError) as exc:
+            if "can't allocate memory" in str(exc):  # torch's allocator at the memory limit
+                raise MemoryError(str(exc)) from None
             raise GraphError(f"{name}: the op {node.op} cannot be computed ({exc})") from None
     return values[output.split(":")[0]]

@@ -10,7 +10,7 @@ from tensorboard.compat.proto import attr_value_pb2
 from tensorboard.util import tensor_util
 
 from tests.training.interchange.bomb_support import checkpoint_index, op
-from training.interchange import tfcheckpoint
+from training.interchange import tfcheckpoint, tfgraph
 from training.interchange.graphbudget import check_graph
 from training.interchange.tfcheckpoint import CheckpointFormatError, read_checkpoint
 from training.interchange.tfgraph import GraphWriter, run_graph
@@ -73,3 +73,16 @@ def test_checkpoint_tensors_are_read_when_used_within_a_total(monkeypatch) -> No
     monkeypatch.setattr(tfcheckpoint, "MAX_GRAPH_VALUES", 6)
     with pytest.raises(CheckpointFormatError, match="more than 6 values in all .at 'c'."):
         tensors["c"]
+
+
+def test_running_out_of_memory_is_not_mistaken_for_a_bad_constant(monkeypatch) -> None:
+    """Under the child's memory limit, numpy's MemoryError must reach the child's handler
+    (which words it as the memory limit), not become "unreadable constant"."""
+    node = deepracer_flatten().graph.node[-2]
+
+    def no_memory(tensor):
+        raise MemoryError("Unable to allocate 109. MiB")
+
+    monkeypatch.setattr(tfgraph.tensor_util, "make_ndarray", no_memory)
+    with pytest.raises(MemoryError):
+        tfgraph.const_value(node)
