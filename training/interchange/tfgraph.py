@@ -323,8 +323,8 @@ def run_graph(graph: graph_pb2.GraphDef, feeds: dict[str, np.ndarray], output: s
             if spent > budget:
                 raise GraphError(
                     f"{name}: the graph needs more than {budget:,} multiply-adds for "
-                    f"{budget // MAX_MACS_PER_IMAGE} images; a DeepRacer model needs about "
-                    "130,000,000 per image"
+                    f"{budget // MAX_MACS_PER_IMAGE} images; a DeepRacer model needs at most "
+                    "about 126,000,000 per image"
                 )
             values[name] = np.asarray(_compute(node, args))
         except GraphError:

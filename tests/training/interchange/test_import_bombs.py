@@ -133,11 +133,18 @@ def test_a_broadcast_that_would_make_a_huge_tensor_is_refused() -> None:
 
 
 def test_a_deep_graph_is_refused_and_a_long_one_runs_without_recursion() -> None:
-    with pytest.raises(GraphBudgetError, match="more than 2,000 nodes deep"):
-        check_graph(identity_chain(5_000))
-    long = identity_chain(1_500)  # deeper than Python's recursion limit
-    out = run_graph(long, {"x": ones((2, 4))}, "id1499")
+    with pytest.raises(GraphBudgetError, match="more than 1,200 nodes deep .at 'id1199'."):
+        check_graph(identity_chain(1_500))
+    long = identity_chain(1_100)  # deeper than Python's recursion limit
+    out = run_graph(long, {"x": ones((2, 4))}, "id1099")
     np.testing.assert_array_equal(out, ones((2, 4)))
+
+
+def test_a_graph_of_too_many_nodes_is_refused() -> None:
+    graph = matmul_chain(size=2, length=0)
+    graph.node.extend(fill(f"c{i}", [1]) for i in range(2_500))
+    with pytest.raises(GraphBudgetError, match="the graph has 2,502 nodes; .* at most 2,000"):
+        check_graph(graph)
 
 
 def test_bad_attributes_say_what_is_wrong() -> None:
