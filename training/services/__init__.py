@@ -5,6 +5,8 @@ a message a user can act on. Side effects on other processes start only after th
 
 - :mod:`~training.services.models`: create, clone, import, delete a model.
 - :mod:`~training.services.jobs`: the one state machine of training and evaluation jobs.
+- :mod:`~training.services.records`: what a running job records besides its status (a
+  checkpoint exists, where an evaluation's logs are).
 - :mod:`~training.services.checks`: tracks, configurations, reward functions, names, quotas.
 - :mod:`~training.services.downloads`: what a user downloads.
 - :mod:`~training.services.rewards`: reward validations on a worker, and the passes that let
@@ -60,6 +62,7 @@ from training.services.racing import (
     race_settings,
     sensor_advice,
 )
+from training.services.records import evaluation_record_logs, model_mark_checkpoint
 from training.services.tracks import TrackCheck, default_track_id, track_check, track_import
 
 __all__ = [
@@ -80,6 +83,7 @@ __all__ = [
     "sensor_advice",
     "check_reward",
     "check_track",
+    "evaluation_record_logs",
     "evaluation_start",
     "job_begin",
     "job_claim",
@@ -96,6 +100,7 @@ __all__ = [
     "model_create",
     "model_delete",
     "model_import",
+    "model_mark_checkpoint",
     "model_metadata",
     "model_settle",
     "model_update_reward",

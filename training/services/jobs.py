@@ -136,8 +136,15 @@ def _transition_where(job: Job, where: Q, *, to: str, **fields) -> bool:
             setattr(job, name, value)
     if computed:
         job.refresh_from_db(fields=computed)
-    live.send(live.job_group(job_kind(job), job.pk), {"type": "job.status", "status": to})
+    _broadcast_after_commit(job, to)
     return True
+
+
+def _broadcast_after_commit(job: Job, status: str) -> None:
+    """Tell the job's live group its new status once the change is committed (at once outside
+    a transaction): a browser never sees a status the database may still roll back."""
+    group = live.job_group(job_kind(job), job.pk)
+    transaction.on_commit(lambda: live.send(group, {"type": "job.status", "status": status}))
 
 
 def model_settle(model: RacingModel, error: str = "") -> None:

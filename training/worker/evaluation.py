@@ -73,7 +73,7 @@ def run_evaluation_job(evaluation_id: int, worker: str = "") -> str:
                         json.dumps(report.metrics_json()).encode(), "application/json")  # fmt: skip
         store.put_bytes(keys.evaluation_simtrace(stamp), csv_text(report.rows).encode(),
                         "text/csv")  # fmt: skip
-        EvaluationJob.objects.filter(pk=job.pk).update(log_stamp=stamp)
+        services.evaluation_record_logs(job=job, stamp=stamp)
         if report.video_mp4:
             store.put_bytes(keys.video(job.pk), report.video_mp4, "video/mp4")
     except Exception as exc:  # noqa: BLE001 - every failure ends the job with a message

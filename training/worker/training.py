@@ -125,9 +125,7 @@ class JobHooks(TrainingHooks):
             if result.best:
                 progress.update(best_iteration=n, best_eval_progress=result.eval_progress)
             services.job_heartbeat(job_model=TrainingJob, job_id=self.job.pk, **progress)
-            if not self.model.has_checkpoint:
-                RacingModel.objects.filter(pk=self.model.pk).update(has_checkpoint=True)
-                self.model.has_checkpoint = True
+            services.model_mark_checkpoint(model=self.model)
         self._write_training_metrics()
         analysis_summary_update(model=self.model)
         live.send(self.group, {"type": "job.metrics", "point": point})
