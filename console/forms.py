@@ -15,11 +15,11 @@ from django.core.validators import RegexValidator
 from console import tracks
 from console.race_form import RaceSettingsForm
 from racing.tracks import MAX_TRACK_FILE_BYTES
+from training import catalog
 from training.errors import ServiceError
-from training.interchange.archive import ImportLimits
 from training.models import MODEL_NAME_RE, Direction, RaceType
 
-MAX_IMPORT_BYTES = ImportLimits().max_upload_bytes
+MAX_IMPORT_BYTES = catalog.MAX_IMPORT_BYTES
 """Largest model archive accepted: the reader's own limit, so the form and it agree."""
 
 _name_field = {

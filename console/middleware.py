@@ -11,7 +11,7 @@ from django.db import InterfaceError, OperationalError
 from django.http import HttpRequest, HttpResponse, JsonResponse
 from django.utils.html import escape
 
-from training.storage import ObjectNotFound, StoreError
+from training.errors import ObjectNotFound, StoreError
 
 log = logging.getLogger(__name__)
 RETRY_AFTER_S = 30

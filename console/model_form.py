@@ -28,19 +28,24 @@ from racing.actions import (
     discrete_action_list,
 )
 from training import services
-from training.models import MODEL_NAME_RE, Direction
-from training.rewards.examples import example_source
-from training.rl.hyperparams import (
+from training.catalog import (
     BATCH_SIZES,
+    DEFAULT_PRESET,
+    LEAN,
     LOSS_TYPES,
+    NETWORK_LABELS,
+    PRESETS,
     RANGES,
     SAC_DEFAULTS,
     HyperparameterError,
     Hyperparameters,
+    Preset,
+    UnknownPreset,
+    example_source,
     parse_hyperparameters,
+    preset,
 )
-from training.rl.policies import LEAN, NETWORK_LABELS
-from training.rl.presets import DEFAULT_PRESET, PRESETS, Preset, UnknownPreset, preset
+from training.models import MODEL_NAME_RE, Direction
 
 SENSORS = [("FRONT_FACING_CAMERA", "Camera"), ("STEREO_CAMERAS", "Stereo camera")]
 LIDARS = [

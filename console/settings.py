@@ -23,7 +23,7 @@ from django.core.exceptions import ImproperlyConfigured
 
 from console.env import envbool, envint, envlist, envstr
 from console.redisconf import cache_settings, celery_settings, channel_layers
-from training.storage import DEFAULT_BUCKET, StoreError, check_bucket_name
+from training.bucket import DEFAULT_BUCKET, StoreError, check_bucket_name
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 # Runtime state (SQLite file, embedded Redis socket, local object store); git-ignored.

@@ -3,8 +3,10 @@
 - import-linter's contracts (pyproject.toml) are kept: racing/ is a pure library, imports point
   one way (console -> leaderboard -> training -> racing), training's Django-free rooms import
   no Django, and only training.storage talks to MinIO.
-- The contracts are not vacuous: a copy of the project with one Django import added to the RL
-  core breaks them.
+- The console and the league use training through its services, selectors, models and small
+  public helpers (training.catalog, training.errors, training.formatting), never its internals.
+- The contracts are not vacuous: a copy of the project with one forbidden import added (Django
+  in the RL core, a training internal in the console or the league...) breaks them.
 - No import cycle among training's modules, function-local imports included (grimp sees them).
 """
 
@@ -49,6 +51,10 @@ def test_import_contracts_are_kept():
         ("training/interchange", "import minio", "only training.storage talks to MinIO"),
         ("racing", "import celery", "racing is a pure library"),
         ("training/services", "from training import tasks", "interfaces > worker > services"),
+        ("console", "from training.rl import presets", "console and league use training's"),
+        ("console/views", "from training import sandbox", "console and league use training's"),
+        ("leaderboard", "import training.storage", "console and league use training's"),
+        ("leaderboard", "from training.worker import common", "console and league use training's"),
     ],
 )
 def test_a_forbidden_import_breaks_the_contracts(tmp_path, room, line, contract):

@@ -1,8 +1,13 @@
-"""The errors services and selectors raise: each carries a message a user can act on."""
+"""The errors services and selectors raise: each carries a message a user can act on; and the
+object store's (:class:`StoreError`, :class:`ObjectNotFound`), which the web catches to answer
+"storage unavailable, try again"."""
 
 from __future__ import annotations
 
 from training.sandbox import RewardError
+from training.storage import ObjectNotFound, StoreError
+
+__all__ = ["ObjectNotFound", "RewardRejected", "ServiceError", "StoreError"]
 
 
 class ServiceError(Exception):

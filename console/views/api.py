@@ -13,8 +13,7 @@ from django.urls import reverse
 from django.views.decorators.http import require_http_methods, require_safe
 
 from training import services
-from training.sandbox import MAX_SOURCE_CHARS, RewardError, check_source
-from training.sandbox.static import SOURCE_TOO_LONG
+from training.catalog import MAX_SOURCE_CHARS
 from training.services import background, rewards
 
 #: The largest request a source at the limit can make: 12 bytes a character when a form
@@ -83,7 +82,7 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
     Errors are DeepRacer's: ``{type, message, line, column, lineNumber}``; a request we cannot
     read, or one over the per-user limits, answers 400 (429 for limits) with one REQUEST_ERROR;
     a body too large for any source within the limit, 413 with the SYNTAX_ERROR every other
-    way of checking gives a source that is too long (``SOURCE_TOO_LONG``).
+    way of checking gives a source that is too long.
     """
     if request.method == "GET":
         try:
@@ -94,7 +93,7 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
             return _error("No such validation.", status=404)
         return JsonResponse(dict(status))
     if _declared_length(request) > MAX_BODY_BYTES or len(request.body) > MAX_BODY_BYTES:
-        too_long = {**RewardError("SYNTAX_ERROR", SOURCE_TOO_LONG).to_dict(), "field": "source"}
+        too_long = {**rewards.reward_too_long_error(), "field": "source"}
         body = {"status": "done", "ok": False, "errors": [too_long], "rewards": {}}
         return JsonResponse(body, status=413)
     if request.content_type == "application/json":
@@ -116,12 +115,11 @@ def reward_validate(request: HttpRequest) -> JsonResponse:
         return _error("Choose a track to validate on.", field="track")
     if not isinstance(direction, str):
         return _error("'direction' must be native, ccw or cw.", field="direction")
-    static = check_source(source) if source.strip() else []
+    static = rewards.reward_parse_errors(source=source)
     try:
         if static:  # parsing only: answered here, nothing queued
             services.check_track(track, direction)
-            errors = [e.to_dict() for e in static]
-            return JsonResponse({"status": "done", "ok": False, "errors": errors, "rewards": {}})
+            return JsonResponse({"status": "done", "ok": False, "errors": static, "rewards": {}})
         task_id = rewards.reward_validation_start(
             user_id=request.user.pk, source=source, track_id=track, direction=direction
         )

@@ -15,9 +15,8 @@ from console.model_form import HP_LABELS, PPO_ONLY, SAC_ONLY
 from console.race_form import race_initial
 from console.views.owned import owned_evaluation, owned_model, owned_training_job
 from console.views.service_calls import attempt, attempt_on_form
-from training import selectors, services
+from training import catalog, selectors, services
 from training.models import RacingModel
-from training.rl.policies import NETWORK_LABELS
 
 SENSOR_LABELS = {"FRONT_FACING_CAMERA": "Camera", "STEREO_CAMERAS": "Stereo camera",
                  "LIDAR": "LIDAR", "SECTOR_LIDAR": "Sector LIDAR",
@@ -53,7 +52,7 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
         "sensor_labels": [SENSOR_LABELS.get(s, s) for s in model.sensors],
         "sensor_advice": services.sensor_advice(model.race_type, model.sensors),
         "algorithm_label": ALGORITHM_LABELS.get(model.algorithm, model.algorithm),
-        "network_label": NETWORK_LABELS.get(model.neural_network, model.neural_network),
+        "network_label": catalog.NETWORK_LABELS.get(model.neural_network, model.neural_network),
         "hyperparameter_rows": hyperparameter_rows(model),
         "job": job,
         "chart_points": selectors.chart_points(job) if job else [],

@@ -19,8 +19,7 @@ from console.forms import CloneForm, ImportForm, RewardForm
 from console.model_form import HP_FIELDS, PPO_ONLY, SAC_ONLY, ModelCreateForm
 from console.views.owned import owned_model
 from console.views.service_calls import attempt_on_form, attempt_validated
-from training import selectors, services
-from training.rewards.examples import EXAMPLES, example_source
+from training import catalog, selectors, services
 from training.services import background
 
 
@@ -36,8 +35,8 @@ def model_list(request: HttpRequest) -> HttpResponse:
 
 def _editor_context(reward_errors: list[dict] | None = None) -> dict:
     return {
-        "examples": [(e.id, e.title, e.race_type) for e in EXAMPLES],
-        "example_sources": {e.id: example_source(e.id) for e in EXAMPLES},
+        "examples": [(e.id, e.title, e.race_type) for e in catalog.EXAMPLES],
+        "example_sources": {e.id: catalog.example_source(e.id) for e in catalog.EXAMPLES},
         "reward_errors": reward_errors or [],
         "track_rows": tracks.track_rows(),
     }

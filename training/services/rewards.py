@@ -33,8 +33,8 @@ from django.conf import settings
 
 from training.dispatch import VALIDATE_REWARD
 from training.errors import RewardRejected, ServiceError
-from training.sandbox import check_source
-from training.sandbox.static import source_too_long
+from training.sandbox import RewardError, check_source
+from training.sandbox.static import SOURCE_TOO_LONG, source_too_long
 from training.services.checks import check_reward, check_track
 
 log = logging.getLogger(__name__)
@@ -128,6 +128,18 @@ def reward_check_before_save(*, user, source: str, track_id: str, direction: str
         user_id=user.pk, source=source, track_id=track_id, direction=direction
     ):
         raise ValidationNeeded(source=source, track_id=track_id, direction=direction)
+
+
+def reward_parse_errors(*, source: str) -> list[dict]:
+    """The errors parsing alone finds in ``source`` (DeepRacer's error dicts, in source
+    order): none for a blank source or one that may run. No user code runs here."""
+    return [e.to_dict() for e in check_source(source)] if source.strip() else []
+
+
+def reward_too_long_error() -> dict:
+    """The error every check gives a source longer than the most a reward function may have
+    (for a request refused by its size before it is read)."""
+    return RewardError("SYNTAX_ERROR", SOURCE_TOO_LONG).to_dict()
 
 
 def reward_validation_remember(*, user_id: int, source: str, track_id: str, direction: str) -> None:
