@@ -87,7 +87,6 @@ def model_create(request: HttpRequest) -> HttpResponse:
         return _create_page(request, form)
     data = form.cleaned_data
     model, reward_errors, poll = attempt_validated(
-        request,
         form,
         lambda: services.model_create(
             owner=request.user,
@@ -136,7 +135,6 @@ def model_clone(request: HttpRequest, model_id: int) -> HttpResponse:
     if request.method == "POST" and form.is_valid():
         data = form.cleaned_data
         clone, reward_errors, poll = attempt_validated(
-            request,
             form,
             lambda: services.model_clone(
                 model=source,
@@ -174,7 +172,6 @@ def model_reward_edit(request: HttpRequest, model_id: int) -> HttpResponse:
     if request.method == "POST" and form.is_valid():
         source = form.cleaned_data["reward_function"]
         updated, reward_errors, poll = attempt_validated(
-            request,
             form,
             lambda: services.model_update_reward(
                 model=model, user=request.user, reward_function=source, reward_check="passed"

@@ -30,31 +30,21 @@ def attempt(request: HttpRequest, call: Callable[[], object], *, success: str = 
 
 
 def attempt_validated(
-    request: HttpRequest, form: Form, call: Callable[[], T]
+    form: Form, call: Callable[[], T | rewards.RewardCheck]
 ) -> tuple[T | None, list[dict], str]:
     """:func:`attempt_on_form` for a call that saves a reward function (``reward_check=
-    "passed"``): when the function still needs a validation, queue one on a worker and return
-    its poll URL as the third item (the page shows the progress and posts the form again when
-    it passes). The web process never runs the function."""
-    try:
-        return call(), [], ""
-    except rewards.ValidationNeeded as exc:
-        needed = exc
-    except RewardRejected as exc:
-        add_service_error(form, "The reward function has errors; see the marked lines.", exc.field)
-        return None, exc.errors, ""
-    except ServiceError as exc:
-        add_service_error(form, exc.message, exc.field)
-        return None, [], ""
-    try:
-        task_id = rewards.reward_validation_start(
-            user_id=request.user.pk, source=needed.source, track_id=needed.track_id,
-            direction=needed.direction,
-        )  # fmt: skip
-    except ServiceError as exc:
-        add_service_error(form, exc.message, "reward_function")
-        return None, [], ""
-    return None, [], f"{reverse('reward-validate')}?id={task_id}"
+    "passed"``), which answers a :class:`~training.services.rewards.RewardCheck` when it saved
+    nothing: a validation queued on a worker gives its poll URL as the third item (the page
+    shows the progress and posts the form again when it passes); a refused function its
+    errors on the form. The web process never runs the function."""
+    result, reward_errors = attempt_on_form(form, call)
+    if not isinstance(result, rewards.RewardCheck):
+        return result, reward_errors, ""
+    if result.status is rewards.RewardStatus.NEEDS_VALIDATION:
+        return None, [], f"{reverse('reward-validate')}?id={result.task_id}"
+    if result.error is not None:
+        _show_refusal(form, result.error)
+    return None, result.errors, ""
 
 
 def attempt_on_form(form: Form, call: Callable[[], T]) -> tuple[T | None, list[dict]]:
@@ -62,9 +52,13 @@ def attempt_on_form(form: Form, call: Callable[[], T]) -> tuple[T | None, list[d
     the result (None when refused) and the reward function's errors for the editor."""
     try:
         return call(), []
-    except RewardRejected as exc:
-        add_service_error(form, "The reward function has errors; see the marked lines.", exc.field)
-        return None, exc.errors
     except ServiceError as exc:
+        _show_refusal(form, exc)
+        return None, exc.errors if isinstance(exc, RewardRejected) else []
+
+
+def _show_refusal(form: Form, exc: ServiceError) -> None:
+    if isinstance(exc, RewardRejected):
+        add_service_error(form, "The reward function has errors; see the marked lines.", exc.field)
+    else:
         add_service_error(form, exc.message, exc.field)
-        return None, []

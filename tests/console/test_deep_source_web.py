@@ -113,11 +113,11 @@ def test_a_source_just_over_the_limit_gets_the_same_message_everywhere(
     assert [e["message"] for e in response.json()["errors"]] == [SOURCE_TOO_LONG]
     page = alice_client.post(f"/models/{alice_model.pk}/reward/", {"reward_function": source})
     assert page.status_code == 400 and SOURCE_TOO_LONG in html.unescape(page.content.decode())
-    with pytest.raises(RewardRejected) as caught:
-        rewards.reward_check_before_save(
-            user=alice, source=source, track_id="racecraft_oval", direction="native", how="passed"
-        )
-    assert caught.value.message == SOURCE_TOO_LONG
+    check = rewards.reward_check_before_save(
+        user=alice, source=source, tracks=[("racecraft_oval", "native")], how="passed"
+    )
+    assert check.status is rewards.RewardStatus.REFUSED
+    assert isinstance(check.error, RewardRejected) and check.error.message == SOURCE_TOO_LONG
 
 
 def test_the_services_give_the_one_message_for_a_10_mb_source(alice) -> None:

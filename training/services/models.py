@@ -14,10 +14,13 @@ it is saved is the caller's choice (``reward_check``; the rule itself is
   on the same track and direction, by the same user, within the last hour
   (:func:`training.services.rewards.reward_validation_passed`; the Validate button's
   validations count). Parsing errors are answered at once with their lines (parsing runs no
-  code); otherwise, without such a pass, :class:`ValidationNeeded` is raised and nothing is
-  saved: the view queues a validation on a worker, the page shows its progress and posts the
-  same form again once it passes (the form's data kept), or shows the errors on their lines.
-- ``"sandbox"`` (the command line, workers): the sandbox runs the function here and now.
+  code); otherwise, without such a pass, nothing is saved and the service returns the
+  :class:`~training.services.rewards.RewardCheck` instead of a model: ``needs_validation``
+  with the id of the validation it queued on a worker (the page shows its progress and posts
+  the same form again once it passes, the form's data kept), or ``refused`` with the errors
+  on their lines. A refusal of anything else raises ServiceError, as ever.
+- ``"sandbox"`` (the command line, workers): the sandbox runs the function here and now; a
+  function it refuses raises RewardRejected (these modes always return a model).
 - ``"none"``: no check (imports, whose reward function is never run before training).
 """
 
@@ -49,7 +52,7 @@ from training.services.checks import (
     track_catalog,
 )
 from training.services.jobs import model_has_active_jobs, owned
-from training.services.rewards import reward_check_before_save
+from training.services.rewards import RewardCheck, reward_check_before_save
 from training.storage import StoreError, StoreUnavailable
 from training.store import get_store, keys_for
 
@@ -225,13 +228,14 @@ def model_create(
     validate_reward: bool = True,
     reward_check: str = "sandbox",
     extra_tracks: list | tuple = (),
-) -> RacingModel:
+) -> RacingModel | RewardCheck:
     """A new model, validated end to end; its reward function is checked on each of its
     tracks as ``reward_check`` says (the module's docstring: ``"passed"`` from the web),
     ``validate_reward=False`` is ``reward_check="none"``. ``extra_tracks``: ``(track_id,
     direction)`` pairs trained on beside ``track_id`` (multi-track training,
-    :func:`check_extra_tracks`). Raises ServiceError, RewardRejected or ValidationNeeded (for
-    the first track without a passed validation: the page validates it and posts again)."""
+    :func:`check_extra_tracks`). Raises ServiceError or RewardRejected; with ``"passed"``, a
+    reward function not saved is answered with its :class:`RewardCheck` instead (the first
+    track without a passed validation is being validated: the page posts again)."""
     check_name(owner, name)
     if len(description) > 255:
         raise ServiceError("the description is at most 255 characters", field="description")
@@ -243,14 +247,25 @@ def model_create(
     )  # fmt: skip
     extra = check_extra_tracks(track_id, direction, extra_tracks)
     how = reward_check if validate_reward else "none"
-    for each_track, each_direction in [(spec.track_id, spec.direction), *extra]:
-        reward_check_before_save(user=owner, source=reward_function, track_id=each_track,
-                                 direction=each_direction, how=how)  # fmt: skip
+    tracks = [(spec.track_id, spec.direction), *((t, d) for t, d in extra)]
+    check = reward_check_before_save(user=owner, source=reward_function, tracks=tracks, how=how)
+    if (not_saved := _not_saved(check, how)) is not None:
+        return not_saved
     with _all_or_nothing() as created:
         model = _create_row(owner, name, description, spec, reward_function, seed, extra)
         created.append(model.pk)
         _store_model_files(model)
     return model
+
+
+def _not_saved(check: RewardCheck, how: str) -> RewardCheck | None:
+    """None when the reward function may be saved; else the check, the web's answer
+    (``"passed"``); the command line and workers get a refusal raised, as ever."""
+    if check.is_ready:
+        return None
+    if how != "passed" and check.error is not None:
+        raise check.error
+    return check
 
 
 def _create_row(owner, name, description, spec, reward_function, seed, extra) -> RacingModel:
@@ -290,13 +305,14 @@ def model_clone(
     action_space: list | dict | None = None,
     checkpoint: str = "best",
     reward_check: str = "sandbox",
-) -> RacingModel:
+) -> RacingModel | RewardCheck:
     """A new model that starts from ``model``'s best (or last) checkpoint. Algorithm, network,
     sensors, action-space type and number of actions stay as they were.
 
     A model without a checkpoint (never trained, or failed before its first one) is copied
     as a fresh model: the same configuration, trained from scratch, with no parent. The reward
-    function is checked on the clone's track as ``reward_check`` says (see model_create)."""
+    function is checked on the clone's track as ``reward_check`` says (see model_create: with
+    ``"passed"``, the :class:`RewardCheck` of a reward function not saved is the answer)."""
     owned(model, owner)
     if checkpoint not in ("best", "last"):
         raise ServiceError("clone from the best or the last checkpoint", field="checkpoint")
@@ -334,6 +350,8 @@ def model_clone(
             max_minutes=max_minutes or model.max_minutes,
             reward_check=reward_check,
         )
+        if isinstance(clone, RewardCheck):
+            return clone  # nothing written: the reward function waits for its validation
         created.append(clone.pk)
         if not model.has_checkpoint:
             return clone  # a fresh copy: nothing to start from
@@ -356,17 +374,21 @@ def model_clone(
 
 def model_update_reward(
     *, model: RacingModel, user, reward_function: str, reward_check: str = "sandbox"
-) -> RacingModel:
+) -> RacingModel | RewardCheck:
     """Change the reward function of a model that has never trained (as on DeepRacer, a
     model's configuration is fixed once training starts: clone it to change it); checked as
-    ``reward_check`` says (see model_create)."""
+    ``reward_check`` says (see model_create: with ``"passed"``, the :class:`RewardCheck` of a
+    reward function not saved is the answer)."""
     owned(model, user)
     if model.has_checkpoint or model.training_jobs.exists() or model.is_busy:
         raise ServiceError(
             "the reward function is fixed once training has started; clone the model to change it"
         )
-    reward_check_before_save(user=user, source=reward_function, track_id=model.track_id,
-                             direction=model.direction, how=reward_check)  # fmt: skip
+    check = reward_check_before_save(user=user, source=reward_function,
+                                     tracks=[(model.track_id, model.direction)],
+                                     how=reward_check)  # fmt: skip
+    if (not_saved := _not_saved(check, reward_check)) is not None:
+        return not_saved
     model.reward_function = reward_function
     model.save(update_fields=["reward_function", "updated_at"])
     get_store().put_bytes(

@@ -10,7 +10,9 @@ a hash of the source (line endings aside), the track and the direction.
 Saving a reward function from the web (create, clone, reward edit: training/services/
 models.py) needs such a pass (:func:`reward_validation_passed`) instead of running the sandbox
 in the web process: a function the user just validated saves at once; any other is validated
-on the way (the page queues a validation, shows its progress and saves when it passes).
+on the way: :func:`reward_check_before_save` answers a :class:`RewardCheck` (ready,
+needs_validation with the id of the validation it queued, or refused); the page shows the
+validation's progress and posts the form again when it passes.
 
 Per-user limits live in Redis so every web process sees the same counts: at most
 ``RACECRAFT_VALIDATIONS_PER_USER`` validations queued or running at once, and at most
@@ -24,6 +26,9 @@ import hashlib
 import logging
 import time
 import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any, TypedDict
 
 import redis
@@ -59,16 +64,50 @@ class ValidationLimited(ServiceError):
     """The user is over a per-user validation limit (answered 429)."""
 
 
-class ValidationNeeded(ServiceError):
-    """Saving this reward function needs a passed validation first: the caller queues one of
-    ``source`` on ``track_id`` and ``direction`` (:func:`reward_validation_start`)."""
+class RewardStatus(StrEnum):
+    """What a check before saving a reward function found (:class:`RewardCheck`)."""
 
-    def __init__(self, *, source: str, track_id: str, direction: str) -> None:
-        super().__init__(
-            "the reward function is being validated; it is saved once it passes",
-            field="reward_function",
-        )
-        self.source, self.track_id, self.direction = source, track_id, direction
+    READY = "ready"
+    """It may be saved now."""
+    NEEDS_VALIDATION = "needs_validation"
+    """It has no passed validation yet: one is queued on a worker (``task_id``)."""
+    REFUSED = "refused"
+    """It may not be saved: ``error`` says why (its lines in ``errors``)."""
+
+
+@dataclass(frozen=True)
+class RewardCheck:
+    """The answer of :func:`reward_check_before_save`: a value to branch on, never raised.
+
+    ``task_id`` (needs_validation): the validation queued for this user, polled with
+    :func:`reward_validation_status`; when it passes, the same save goes through.
+    ``error`` (refused): the refusal, a :class:`ServiceError` (a :class:`RewardRejected`
+    when the function itself has errors) for a caller to show or raise."""
+
+    status: RewardStatus
+    task_id: str = ""
+    error: ServiceError | None = None
+
+    @classmethod
+    def ready(cls) -> RewardCheck:
+        return cls(RewardStatus.READY)
+
+    @classmethod
+    def needs_validation(cls, task_id: str) -> RewardCheck:
+        return cls(RewardStatus.NEEDS_VALIDATION, task_id=task_id)
+
+    @classmethod
+    def refused(cls, error: ServiceError) -> RewardCheck:
+        return cls(RewardStatus.REFUSED, error=error)
+
+    @property
+    def is_ready(self) -> bool:
+        return self.status is RewardStatus.READY
+
+    @property
+    def errors(self) -> list[dict[str, Any]]:
+        """The reward function's errors on their lines (DeepRacer's dicts); [] otherwise."""
+        return list(self.error.errors) if isinstance(self.error, RewardRejected) else []
 
 
 class ValidationStatus(TypedDict, total=False):
@@ -109,25 +148,47 @@ def reward_validation_passed(*, user_id: int, source: str, track_id: str, direct
         client.close()
 
 
-def reward_check_before_save(*, user, source: str, track_id: str, direction: str, how: str
-                             ) -> None:  # fmt: skip
-    """Check ``source`` as ``how`` says (:data:`REWARD_CHECKS`); raises RewardRejected with
-    the errors on their lines, or ValidationNeeded."""
-    if how == "none":
-        return
-    if how == "sandbox":
-        check_reward(source, track_id, direction)
-        return
-    if how != "passed":
+def reward_check_before_save(
+    *, user, source: str, tracks: Sequence[tuple[str, str]], how: str
+) -> RewardCheck:
+    """Check ``source`` on each ``(track_id, direction)`` of ``tracks`` as ``how`` says
+    (:data:`REWARD_CHECKS`). ``"passed"``: parsing errors and bad requests are refused at
+    once; a track without a pass (:func:`reward_validation_passed`) gets a validation queued
+    for ``user`` (the first such track; the answer is ``needs_validation`` with its id, or
+    ``refused`` when it cannot be queued). Raises only ValueError, for an unknown ``how``."""
+    if how not in REWARD_CHECKS:
         raise ValueError(f"reward_check must be one of {REWARD_CHECKS}, not {how!r}")
+    try:
+        for track_id, direction in tracks if how != "none" else ():
+            if how == "sandbox":
+                check_reward(source, track_id, direction)
+            elif not _passed_on(user, source, track_id, direction):
+                return _validation_queued(user, source, track_id, direction)
+    except ServiceError as exc:
+        return RewardCheck.refused(exc)
+    return RewardCheck.ready()
+
+
+def _passed_on(user, source: str, track_id: str, direction: str) -> bool:
+    """Whether ``source`` has a pass on the track; raises ServiceError (RewardRejected with
+    its lines) for a request or a source refused before anything runs."""
     _check_request(source, track_id, direction)
     static = check_source(source)  # parsing only: no user code runs here
     if static:
         raise RewardRejected(static)
-    if not reward_validation_passed(
+    return reward_validation_passed(
         user_id=user.pk, source=source, track_id=track_id, direction=direction
-    ):
-        raise ValidationNeeded(source=source, track_id=track_id, direction=direction)
+    )
+
+
+def _validation_queued(user, source: str, track_id: str, direction: str) -> RewardCheck:
+    try:
+        task_id = reward_validation_start(
+            user_id=user.pk, source=source, track_id=track_id, direction=direction
+        )
+    except ServiceError as exc:  # over a limit, or the queue down: shown on the editor
+        return RewardCheck.refused(ServiceError(exc.message, field="reward_function"))
+    return RewardCheck.needs_validation(task_id)
 
 
 def reward_parse_errors(*, source: str) -> list[dict]:
