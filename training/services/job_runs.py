@@ -1,0 +1,164 @@
+"""The worker's side of the job state machine (:mod:`training.services.jobs`): claiming a
+job (or taking it over from a dead worker process), beginning, heartbeats, the stop poll, and
+the one final state (completed or failed)."""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+
+from django.db import transaction
+from django.db.models import F, Q
+from django.utils import timezone
+
+from training.models import (
+    ACTIVE_JOB_STATUSES,
+    RUNNING_JOB_STATUSES,
+    EvaluationJob,
+    JobStatus,
+    RacingModel,
+    TrainingJob,
+)
+from training.services.job_states import (
+    Job,
+    gave_up_error,
+    max_attempts,
+    model_settle,
+    reconnecting,
+    transition,
+    transition_where,
+)
+from training.signals import evaluation_finished
+
+log = logging.getLogger(__name__)
+
+
+def worker_id(node: str) -> str:
+    """How a job names the process that runs it: ``<celery node>#<pid>``."""
+    return f"{(node or socket.gethostname())[:200]}#{os.getpid()}"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def runner_is_dead(worker: str, node: str) -> bool:
+    """Whether the process named ``worker`` (see :func:`worker_id`) is provably gone: it ran
+    on this node (this machine) and its pid no longer exists."""
+    name, _, pid = worker.rpartition("#")
+    if not name or name != (node or socket.gethostname())[:200] or not pid.isdigit():
+        return False
+    return int(pid) != os.getpid() and not _pid_alive(int(pid))
+
+
+def _trained_seconds(job: Job) -> float:
+    """Training time a job already used in finished iterations (0 for a fresh job)."""
+    if not isinstance(job, TrainingJob):
+        return 0.0
+    last = job.iterations_set.order_by("-iteration").values_list("elapsed_s", flat=True).first()
+    return float(last or 0.0)
+
+
+def job_claim(*, job_model: type[Job], job_id: int, worker: str) -> Job | None:
+    """QUEUED → INITIALIZING for the worker that runs it; None when the job was canceled or
+    another worker (a duplicated or retried task) took it first.
+
+    A task given back because its worker process died (``task_reject_on_worker_lost``) finds
+    its job still running under that dead process: the claim then takes it over at once
+    (compare-and-set on the dead worker's name), and a training job resumes from its last
+    checkpoint. ``worker`` is the Celery node name; the job records ``<node>#<pid>``."""
+    now = timezone.now()
+    job = job_model.objects.select_related("model").get(pk=job_id)
+    me = worker_id(worker)
+    # The page's clock counts training time already spent before a restart.
+    started = now - timezone.timedelta(seconds=_trained_seconds(job))
+    fields = dict(started_at=started, heartbeat_at=now, worker=me, attempts=F("attempts") + 1)
+    taken = transition(job, allowed=(JobStatus.QUEUED,), to=JobStatus.INITIALIZING, **fields)
+    if not taken and job.status in RUNNING_JOB_STATUSES and runner_is_dead(job.worker, worker):
+        if job.status == JobStatus.STOPPING:
+            job_complete(job=job, stopped_by="user")  # its owner wanted it to stop anyway
+            return None
+        if job.attempts >= max_attempts():
+            job_fail(job=job, error=gave_up_error(job))
+            return None
+        taken = transition_where(
+            job, Q(status=job.status, worker=job.worker), to=JobStatus.INITIALIZING, **fields
+        )
+        if taken:
+            log.warning("job %s: took over from dead worker process; resuming", job.pk)
+    if not taken:
+        return None
+    if isinstance(job, TrainingJob):
+        RacingModel.objects.filter(pk=job.model_id).update(status=RacingModel.Status.TRAINING)
+    return job
+
+
+def job_resumed_from(*, job: TrainingJob, description: str) -> None:
+    """Record what a training job's network started from (shown with the job)."""
+    TrainingJob.objects.filter(pk=job.pk).update(resumed_from=description[:500])
+    job.resumed_from = description[:500]
+
+
+def job_begin(*, job: Job) -> bool:
+    """INITIALIZING → IN_PROGRESS, unless a stop request came first (it stays STOPPING)."""
+    return transition(job, allowed=(JobStatus.INITIALIZING,), to=JobStatus.IN_PROGRESS)
+
+
+@reconnecting
+def job_stop_requested(*, job: Job) -> bool:
+    """Whether the worker should stop: its owner asked, or the job is no longer this worker's
+    (queued again and taken by another while this one was cut off). The worker polls this."""
+    return (
+        not type(job)
+        .objects.filter(
+            pk=job.pk, stop_requested=False, worker=job.worker, status__in=RUNNING_JOB_STATUSES
+        )
+        .exists()
+    )
+
+
+@reconnecting
+def job_complete(*, job: Job, on_model_error: str = "", **fields) -> bool:
+    """A running job finished: COMPLETED with ``fields`` (results, stopped_by, ...), and its
+    model settles. False when the job had already ended (failed by the reaper, say)."""
+    with transaction.atomic():
+        done = transition_where(
+            job, Q(status__in=RUNNING_JOB_STATUSES, worker=job.worker), to=JobStatus.COMPLETED,
+            finished_at=timezone.now(), **fields,
+        )  # fmt: skip
+        if done:
+            model_settle(job.model, on_model_error)
+    if done and isinstance(job, EvaluationJob):
+        evaluation_finished.send(sender=EvaluationJob, evaluation_id=job.pk)
+    return done
+
+
+@reconnecting
+def job_fail(*, job: Job, error: str) -> bool:
+    """An active job failed with ``error`` (shown to its owner). False when it had already
+    reached a final state, or was queued again and taken by another worker."""
+    with transaction.atomic():
+        # Only while the job is still the caller's (its worker): a worker cut off while its job
+        # was queued again and taken by another cannot end the new run.
+        failed = transition_where(
+            job, Q(status__in=ACTIVE_JOB_STATUSES, worker=job.worker), to=JobStatus.FAILED,
+            error=error[:2000], finished_at=timezone.now(),
+        )  # fmt: skip
+        if failed:
+            model_settle(job.model, error)
+    if failed and isinstance(job, EvaluationJob):
+        evaluation_finished.send(sender=EvaluationJob, evaluation_id=job.pk)
+    return failed
+
+
+@reconnecting
+def job_heartbeat(*, job_model: type[Job], job_id: int, **progress) -> None:
+    """The worker is alive (and, optionally, how far it got: ``laps_done``, ``iterations``)."""
+    job_model.objects.filter(pk=job_id).update(heartbeat_at=timezone.now(), **progress)
