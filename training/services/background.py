@@ -9,7 +9,8 @@ request (issue 10).
 - **Car export**: :func:`car_export_ready` hands over an archive already built (the store
   keeps it at the model's ``car_export`` key); otherwise :func:`car_export_start` queues
   ``training.tasks.export_car_model``, whose worker builds it into the store
-  (:func:`~training.services.downloads.car_model_archive`); the page then offers the download.
+  (:func:`~training.services.downloads.car_model_archive`, the one builder:
+  :func:`~training.services.downloads.car_archive_build`); the page then offers the download.
 
 Both run on the ``interactive`` queue (console/celery.py). The page polls
 :func:`background_status` with the task id, which only the user who started it may read. Per
@@ -39,10 +40,10 @@ from training.dispatch import EXPORT_CAR_MODEL, IMPORT_MODEL
 from training.errors import ServiceError
 from training.models import RacingModel
 from training.services.checks import check_model_quota, check_name
-from training.services.downloads import car_model_archive
+from training.services.downloads import car_archive_stored, car_model_archive
 from training.services.models import model_import, store_failure
 from training.storage import ObjectNotFound, StoreError, StoreUnavailable
-from training.store import get_store, keys_for
+from training.store import get_store
 
 log = logging.getLogger(__name__)
 #: How long a task id stays readable and a slot taken without an answer (seconds).
@@ -192,14 +193,7 @@ def car_export_ready(model: RacingModel) -> bytes | None:
     An unreachable store is raised (the page answers 503)."""
     if not model.has_checkpoint:
         raise ServiceError("this model has no trained checkpoint yet")
-    try:
-        return get_store().get_bytes(keys_for(model.pk).car_export)
-    except ObjectNotFound:
-        return None
-    except StoreUnavailable:
-        raise
-    except StoreError as exc:
-        raise store_failure(exc, "the car model could not be read") from None
+    return car_archive_stored(model)
 
 
 def car_export_start(*, model: RacingModel, user) -> str:

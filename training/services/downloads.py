@@ -6,9 +6,8 @@ from collections.abc import Callable
 
 from training.errors import ServiceError
 from training.http import Media
-from training.interchange.carmodel import CarExportError
+from training.interchange.carmodel import CarExportError, build_car_archive
 from training.interchange.export import (
-    build_car_archive,
     build_logs_archive,
     build_virtual_model_archive,
     export_onnx,
@@ -27,23 +26,39 @@ def _need_checkpoint(model: RacingModel) -> None:
 
 def car_model_archive(model: RacingModel) -> bytes:
     """``<name>-car.tar.gz`` for the physical car: ``agent/model.pb`` (a frozen TensorFlow
-    graph with DeepRacer's names) and ``model_metadata.json`` at its root."""
+    graph with DeepRacer's names) and ``model_metadata.json`` at its root. The archive kept in
+    the store when there is one, else built now (:func:`car_archive_build`)."""
     _need_checkpoint(model)
-    store, keys = get_store(), keys_for(model.pk)
+    stored = car_archive_stored(model)
+    return stored if stored is not None else car_archive_build(model)
+
+
+def car_archive_stored(model: RacingModel) -> bytes | None:
+    """The car archive already built into the store (a store read, nothing heavy), else None.
+    An unreachable store is raised as it is (the page answers 503 "try again":
+    console/middleware.py); another store failure as a ServiceError."""
     try:
-        return store.get_bytes(keys.car_export)
+        return get_store().get_bytes(keys_for(model.pk).car_export)
     except ObjectNotFound:
-        pass
+        return None
     except StoreUnavailable:
-        raise  # the page answers 503 "try again" (console/middleware.py)
+        raise
     except StoreError as exc:
         raise store_failure(exc, "the car model could not be read") from None
+
+
+def car_archive_build(model: RacingModel) -> bytes:
+    """Build the car archive from the model's best checkpoint and keep it in the store, over
+    any earlier one: the one way a car archive is made (the download, the background export
+    and the export after training all come here; the bytes are
+    :func:`training.interchange.carmodel.build_car_archive`'s). Raises ServiceError, or
+    StoreUnavailable as it is."""
     try:
         data = build_car_archive(model_metadata(model), _best_checkpoint(model))
     except (CarExportError, CheckpointError) as exc:
         raise ServiceError(f"this model cannot be written for the car: {exc}") from None
     try:
-        store.put_bytes(keys.car_export, data, "application/gzip")
+        get_store().put_bytes(keys_for(model.pk).car_export, data, "application/gzip")
     except StoreUnavailable:
         raise
     except StoreError as exc:
