@@ -17,7 +17,6 @@ from django.db import transaction
 
 from racing.rules import STATUS_LABELS, Status
 from training import live, services
-from training.interchange.export import build_car_archive
 from training.interchange.logbook import LoggedIteration, TrainingLog
 from training.models import EpisodeMetric, IterationMetric, RacingModel, TrainingJob
 from training.rl.algorithms import DeviceError
@@ -28,6 +27,7 @@ from training.rl.streamed import train
 from training.rollout.vecenv import RolloutError
 from training.sandbox import SandboxError
 from training.services.analysis import analysis_summary_update
+from training.services.downloads import car_archive_build
 from training.storage import ObjectNotFound, StoreError
 from training.store import get_store, keys_for
 from training.worker.common import (
@@ -298,9 +298,7 @@ def run_training_job(job_id: int, worker: str = "") -> str:
 def _export_car(model: RacingModel) -> None:
     """Write the car archive (``agent/model.pb`` + ``model_metadata.json``) from the best
     checkpoint, so the download is ready at once."""
-    store, keys = get_store(), keys_for(model.pk)
     try:
-        metadata = services.model_metadata(model)
-        store.put_bytes(keys.car_export, build_car_archive(metadata, store.get_bytes(keys.best)))
+        car_archive_build(model)
     except Exception:  # noqa: BLE001 - the download rebuilds it on demand
         log.warning("could not export model %s for the car", model.pk, exc_info=True)
