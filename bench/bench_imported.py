@@ -24,11 +24,9 @@ median episode progress over all their episodes, the Racecraft model's, and AWS 
 from __future__ import annotations
 
 import argparse
-import io
 import os
 import shutil
 import sys
-import tarfile
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -45,6 +43,7 @@ from racing.env import RacingEnv  # noqa: E402
 from racing.rules import Status  # noqa: E402
 from racing.track import Track  # noqa: E402
 from training.interchange.deepracer import import_car_archive  # noqa: E402
+from training.interchange.tarball import deterministic_tar_gz  # noqa: E402
 from training.rl.checkpoints import load_checkpoint  # noqa: E402
 from training.rl.policies import LEAN  # noqa: E402
 from training.rl.presets import RACING  # noqa: E402 - the racing preset's PPO settings
@@ -80,23 +79,15 @@ class Drive:
     by_direction: dict[str, list[float]] = field(default_factory=dict)
 
 
-def tar_gz(files: dict[str, bytes]) -> bytes:
-    raw = io.BytesIO()
-    with tarfile.open(fileobj=raw, mode="w:gz") as tar:
-        for name, data in files.items():
-            info = tarfile.TarInfo(name)
-            info.size = len(data)
-            tar.addfile(info, io.BytesIO(data))
-    return raw.getvalue()
-
-
 def aws_models():
     """(name, SB3 model, action space) of each AWS sample checkpoint, imported as car models."""
     from tests.training.interchange.deepracer_support import aws_samples
 
     samples = aws_samples()
     for iteration, graph in sorted(samples.graphs.items()):
-        upload = tar_gz({"agent/model.pb": graph, "model_metadata.json": samples.metadata})
+        upload = deterministic_tar_gz(
+            {"agent/model.pb": graph, "model_metadata.json": samples.metadata}
+        )
         imported = import_car_archive(upload)
         model = load_checkpoint(imported.checkpoint_bytes, imported.metadata)
         yield f"aws model_{iteration}.pb", model, imported.metadata.actions.to_metadata()

@@ -12,10 +12,12 @@ there is no Chromium at ``$RACECRAFT_TEST_CHROMIUM`` (default ``/usr/bin/chromiu
 
 from __future__ import annotations
 
+import io
 import os
 import socket
 import subprocess
 import sys
+import tarfile
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
@@ -301,3 +303,19 @@ def train_in_thread(job, user, *, iterations: int, within_s: float):
     thread.join(timeout=300)
     assert not thread.is_alive(), "the training job did not stop"
     return TrainingJob.objects.get(pk=job.pk)
+
+
+def tar_gz(
+    entries: dict[str, bytes], extra: Callable[[tarfile.TarFile], None] | None = None
+) -> bytes:
+    """A tar.gz of ``entries`` (member name -> bytes) as an upload would bring it, names as
+    given (hostile ones included); ``extra`` adds members of other kinds (links, devices)."""
+    raw = io.BytesIO()
+    with tarfile.open(fileobj=raw, mode="w:gz", compresslevel=1) as tar:
+        for name, data in entries.items():
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+        if extra:
+            extra(tar)
+    return raw.getvalue()

@@ -6,6 +6,8 @@ import pytest
 from django.contrib.auth import get_user_model
 from django.test import Client
 
+from tests.conftest import clear_cache
+from tests.console.ratelimit_clock import FrozenClock, freeze_ratelimit_clock
 from training import services
 from training.models import RacingModel
 
@@ -55,3 +57,17 @@ def make_model(owner, name: str = "alice-oval", **overrides) -> RacingModel:
 @pytest.fixture
 def alice_model(alice, store_dir) -> RacingModel:
     return make_model(alice)
+
+
+@pytest.fixture
+def fresh_rate_counts():
+    """Rate-limit counts (Django's cache, in Redis) empty before and after the test."""
+    clear_cache()
+    yield
+    clear_cache()
+
+
+@pytest.fixture
+def frozen_clock(monkeypatch: pytest.MonkeyPatch) -> FrozenClock:
+    """django-ratelimit's clock, frozen: no window ends mid-test (ratelimit_clock.py)."""
+    return freeze_ratelimit_clock(monkeypatch)

@@ -8,16 +8,11 @@ import pytest
 from django.contrib.auth import get_user_model
 from django.test import Client
 
-from tests.console.ratelimit_clock import FrozenClock, freeze_ratelimit_clock
+from tests.console.ratelimit_clock import FrozenClock
 
 pytestmark = pytest.mark.django_db
 PASSWORD = "correct-horse-battery-9"
 ADMIN_LOGIN = "/admin/login/"
-
-
-@pytest.fixture
-def frozen_clock(monkeypatch: pytest.MonkeyPatch) -> FrozenClock:
-    return freeze_ratelimit_clock(monkeypatch)
 
 
 @pytest.fixture

@@ -19,26 +19,12 @@ from django.test import Client, RequestFactory
 
 from console.launcher import ConsoleOptions, Supervisor, web_spec
 from console.throttle import client_ip
-from tests.conftest import clear_cache
-from tests.console.ratelimit_clock import FrozenClock, freeze_ratelimit_clock
 from tests.support import free_port
 
-pytestmark = pytest.mark.django_db
+pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("fresh_rate_counts")]
 PROXY = "10.0.0.1"
 LOGIN = "/accounts/login/"
 _NAMES = itertools.count()
-
-
-@pytest.fixture(autouse=True)
-def _fresh_counts():
-    clear_cache()
-    yield
-    clear_cache()
-
-
-@pytest.fixture
-def frozen_clock(monkeypatch: pytest.MonkeyPatch) -> FrozenClock:
-    return freeze_ratelimit_clock(monkeypatch)
 
 
 def _attempt(peer: str, forwarded: str | None = None, username: str = "") -> int:

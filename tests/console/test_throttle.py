@@ -8,23 +8,8 @@ import pytest
 from django.contrib.auth import get_user_model
 from django.test import Client
 
-from tests.conftest import clear_cache
-from tests.console.ratelimit_clock import FrozenClock, freeze_ratelimit_clock
-
-pytestmark = pytest.mark.django_db
+pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("fresh_rate_counts")]
 PASSWORD = "correct-horse-battery-9"
-
-
-@pytest.fixture(autouse=True)
-def _fresh_counts():
-    clear_cache()
-    yield
-    clear_cache()
-
-
-@pytest.fixture
-def frozen_clock(monkeypatch: pytest.MonkeyPatch) -> FrozenClock:
-    return freeze_ratelimit_clock(monkeypatch)
 
 
 def test_log_in_attempts_are_limited_per_address(settings, frozen_clock) -> None:

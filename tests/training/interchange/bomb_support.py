@@ -11,6 +11,7 @@ import numpy as np
 from tensorboard.compat.proto import attr_value_pb2, graph_pb2, node_def_pb2, tensor_pb2, types_pb2
 from tensorboard.compat.proto.tensor_shape_pb2 import TensorShapeProto
 
+from tests.support import tar_gz
 from training.interchange.carmodel import build_car_archive
 from training.interchange.export import new_model
 from training.interchange.tfcheckpoint import TABLE_MAGIC, _entry_class
@@ -31,16 +32,6 @@ def car_archive_files() -> dict[str, bytes]:
     data = build_car_archive(meta, new_model(meta))
     with tarfile.open(fileobj=io.BytesIO(data)) as tar:
         return {m.name: tar.extractfile(m).read() for m in tar.getmembers() if m.isfile()}
-
-
-def tar_gz(files: dict[str, bytes]) -> bytes:
-    raw = io.BytesIO()
-    with tarfile.open(fileobj=raw, mode="w:gz") as tar:
-        for name, data in files.items():
-            info = tarfile.TarInfo(name)
-            info.size = len(data)
-            tar.addfile(info, io.BytesIO(data))
-    return raw.getvalue()
 
 
 def fill(name: str, shape: list[int], value: float = 0.5) -> node_def_pb2.NodeDef:

@@ -12,6 +12,7 @@ from collections.abc import Callable
 import pytest
 import torch
 
+from tests.support import tar_gz
 from training.interchange.archive import (
     ArchiveError,
     ImportLimits,
@@ -38,20 +39,6 @@ def files(ppo_discrete) -> dict[str, bytes]:
         "model/best.zip": checkpoint_bytes(ppo_discrete.model),
         "metrics/TrainingMetrics.json": b'{"metrics": [{"reward_score": 3}]}',
     }
-
-
-def tar_gz(
-    entries: dict[str, bytes], extra: Callable[[tarfile.TarFile], None] | None = None
-) -> bytes:
-    raw = io.BytesIO()
-    with tarfile.open(fileobj=raw, mode="w:gz", compresslevel=1) as tar:
-        for name, data in entries.items():
-            info = tarfile.TarInfo(name)
-            info.size = len(data)
-            tar.addfile(info, io.BytesIO(data))
-        if extra:
-            extra(tar)
-    return raw.getvalue()
 
 
 def zip_of(entries: dict[str, bytes]) -> bytes:

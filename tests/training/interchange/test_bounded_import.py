@@ -3,13 +3,12 @@ the child as a file of JSON and bytes (no pickle), validated again on this side.
 
 from __future__ import annotations
 
-import io
 import json
-import tarfile
 
 import pytest
 import torch
 
+from tests.support import tar_gz
 from training.interchange.archive import import_virtual_model
 from training.interchange.bounded import import_upload
 from training.interchange.deepracer import ImportedDeepRacerModel
@@ -17,16 +16,6 @@ from training.interchange.export import checkpoint_bytes, load_checkpoint
 from training.interchange.importwire import MAGIC, WireError, read_result, write_error
 
 REWARD = "def reward_function(params):\n    return 1.0\n"
-
-
-def tar_gz(entries: dict[str, bytes]) -> bytes:
-    raw = io.BytesIO()
-    with tarfile.open(fileobj=raw, mode="w:gz", compresslevel=1) as tar:
-        for name, data in entries.items():
-            info = tarfile.TarInfo(name)
-            info.size = len(data)
-            tar.addfile(info, io.BytesIO(data))
-    return raw.getvalue()
 
 
 @pytest.fixture(scope="module")

@@ -3,7 +3,6 @@ AWS-trained sample models, the round trip back to the car, and bad uploads."""
 
 from __future__ import annotations
 
-import io
 import json
 import tarfile
 
@@ -11,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.support import tar_gz
 from tests.training.interchange.carmodel_support import (
     metadata_for,
     run_tensorflow,
@@ -38,18 +38,6 @@ from training.rl.policies import AWS_SHALLOW, SHALLOW
 
 REWARD = b"def reward_function(params):\n    return 1.0\n"
 HYPERPARAMETERS = json.dumps({"batch_size": 64, "lr": 0.0003, "num_epochs": 10}).encode()
-
-
-def tar_gz(files: dict[str, bytes], extra=None) -> bytes:
-    raw = io.BytesIO()
-    with tarfile.open(fileobj=raw, mode="w:gz") as tar:
-        for name, data in files.items():
-            info = tarfile.TarInfo(name)
-            info.size = len(data)
-            tar.addfile(info, io.BytesIO(data))
-        if extra:
-            extra(tar)
-    return raw.getvalue()
 
 
 @pytest.fixture(scope="module")

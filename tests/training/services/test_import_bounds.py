@@ -8,7 +8,8 @@ import gc
 import psutil
 import pytest
 
-from tests.training.interchange.bomb_support import car_archive_files, fill, tar_gz, with_nodes
+from tests.support import tar_gz
+from tests.training.interchange.bomb_support import car_archive_files, fill, with_nodes
 from training import services
 from training.models import RacingModel
 from training.services import ServiceError, background
