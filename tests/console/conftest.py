@@ -1,9 +1,9 @@
-"""People and models for the console's tests: Alice owns things, Charlie must never see them."""
+"""Clients and models for the console's tests: Alice owns things, Charlie must never see them
+(the characters themselves are tests/conftest.py's)."""
 
 from __future__ import annotations
 
 import pytest
-from django.contrib.auth import get_user_model
 from django.test import Client
 
 from tests.conftest import clear_cache
@@ -11,19 +11,8 @@ from tests.console.ratelimit_clock import FrozenClock, freeze_ratelimit_clock
 from training import services
 from training.models import RacingModel
 
-PASSWORD = "correct-horse-battery-9"
 REWARD = "def reward_function(params):\n    return 1.0\n"
 ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-30, 0, 30)]
-
-
-@pytest.fixture
-def alice(db):
-    return get_user_model().objects.create_user("alice", password=PASSWORD)
-
-
-@pytest.fixture
-def charlie(db):
-    return get_user_model().objects.create_user("charlie", password=PASSWORD)
 
 
 @pytest.fixture

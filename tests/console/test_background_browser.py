@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 from django.contrib.auth import get_user_model
 
-from tests.console.conftest import ACTIONS, PASSWORD, make_model
+from tests.conftest import PASSWORD
+from tests.console.conftest import ACTIONS, make_model
 from training.interchange.export import checkpoint_bytes
 from training.models import RacingModel
 from training.services.downloads import virtual_model_archive

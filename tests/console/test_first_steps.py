@@ -7,7 +7,8 @@ from __future__ import annotations
 import pytest
 from django.test import Client
 
-from tests.console.conftest import PASSWORD, make_model
+from tests.conftest import PASSWORD
+from tests.console.conftest import make_model
 from training import services
 from training.models import EvaluationJob, JobStatus, RacingModel, TrainingJob
 from training.services import rewards

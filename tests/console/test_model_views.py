@@ -10,7 +10,8 @@ import re
 import pytest
 from django.test import Client
 
-from tests.console.conftest import PASSWORD, REWARD, make_model
+from tests.conftest import PASSWORD
+from tests.console.conftest import REWARD, make_model
 from training.models import RacingModel
 from training.services import rewards
 

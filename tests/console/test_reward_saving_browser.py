@@ -10,7 +10,8 @@ import re
 import pytest
 from django.contrib.auth import get_user_model
 
-from tests.console.conftest import PASSWORD, make_model
+from tests.conftest import PASSWORD
+from tests.console.conftest import make_model
 from training.models import RacingModel
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.django_db(transaction=True),

@@ -13,7 +13,6 @@ import threading
 import time
 
 import pytest
-from django.contrib.auth import get_user_model
 from moto.server import ThreadedMotoServer
 
 from training import services
@@ -156,11 +155,6 @@ class DownStore(LocalStore):
 
     def put_bytes(self, key, data, content_type="application/octet-stream") -> None:
         raise StoreUnavailable("cannot write: connection refused")
-
-
-@pytest.fixture
-def alice(db):
-    return get_user_model().objects.create_user("alice", password="pw-alice-123")
 
 
 @pytest.fixture

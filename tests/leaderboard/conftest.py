@@ -1,24 +1,25 @@
-"""Fixtures of the league tests: the characters (see league_helpers)."""
+"""Fixtures of the league tests: tests/conftest.py's characters with their racer aliases, and
+Fran the facilitator (see league_helpers)."""
 
 from __future__ import annotations
 
 import pytest
-from league_helpers import make_event, make_user
+from league_helpers import make_event, make_user, with_alias
 
 
 @pytest.fixture
-def alice(db):
-    return make_user("alice", alias="Alice-R")
+def alice(alice):
+    return with_alias(alice, "Alice-R")
 
 
 @pytest.fixture
-def bob(db):
-    return make_user("bob", alias="BobRacer")
+def bob(bob):
+    return with_alias(bob, "BobRacer")
 
 
 @pytest.fixture
-def charlie(db):
-    return make_user("charlie", alias="Charlie")
+def charlie(charlie):
+    return with_alias(charlie, "Charlie")
 
 
 @pytest.fixture

@@ -31,6 +31,12 @@ def make_user(name: str, *, alias: str | None = None, facilitator: bool = False,
     return user
 
 
+def with_alias(user, alias: str):
+    """``user`` with a racer profile under ``alias``."""
+    RacerProfile.objects.create(user=user, alias=alias)
+    return user
+
+
 def make_model(owner, name: str = "fast-one", **extra) -> RacingModel:
     fields = {
         "track_id": TRACK,

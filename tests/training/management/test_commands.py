@@ -14,7 +14,6 @@ import tarfile
 from pathlib import Path
 
 import pytest
-from django.contrib.auth import get_user_model
 from django.core.management import call_command
 from django.core.management.base import CommandError
 
@@ -28,16 +27,6 @@ from training.store import get_store, keys_for
 
 ROOT = Path(__file__).resolve().parents[3]
 TINY_HYPERPARAMETERS = {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}
-
-
-@pytest.fixture
-def alice(db):
-    return get_user_model().objects.create_user("alice", password="pw-alice-123")
-
-
-@pytest.fixture
-def bob(db):
-    return get_user_model().objects.create_user("bob", password="pw-bob-123")
 
 
 @pytest.fixture

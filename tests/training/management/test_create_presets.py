@@ -6,7 +6,6 @@ from __future__ import annotations
 import io
 
 import pytest
-from django.contrib.auth import get_user_model
 from django.core.management import call_command
 from django.core.management.base import CommandError
 
@@ -14,12 +13,7 @@ from training.models import RacingModel
 from training.rewards.examples import example_source
 from training.rl.presets import RACING
 
-pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("store_dir")]
-
-
-@pytest.fixture(autouse=True)
-def alice(db):
-    return get_user_model().objects.create_user("alice", password="pw-alice-123")
+pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("store_dir", "alice")]
 
 
 def run(*args: str) -> str:

@@ -8,7 +8,6 @@ import io
 import json
 
 import pytest
-from django.contrib.auth import get_user_model
 from django.core.management import call_command
 from django.core.management.base import CommandError
 
@@ -20,12 +19,7 @@ from training.management.commands import racecraft_create_model, racecraft_evalu
 from training.models import EvaluationJob, JobStatus, RacingModel
 from training.store import get_store, keys_for
 
-pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("store_dir")]
-
-
-@pytest.fixture(autouse=True)
-def alice(db):
-    return get_user_model().objects.create_user("alice", password="pw-alice-123")
+pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("store_dir", "alice")]
 
 
 def create(*args: str) -> str:
