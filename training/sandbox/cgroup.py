@@ -15,11 +15,14 @@ unavailable and the sandbox relies on the other layers that give the same protec
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import time
 from pathlib import Path
 
 ROOT = Path("/sys/fs/cgroup")
 PREFIX = "racecraft-sandbox-"
+REMOVE_TRIES = 100
 
 
 def _own_cgroup(controller: str | None) -> str | None:
@@ -98,9 +101,17 @@ class ChildCgroup:
         return None
 
     def remove(self) -> None:
+        """Delete the cgroup. A child killed with its waiter may take a moment to leave it
+        (EBUSY): try for up to a second, then leave it to the next sandbox's sweep."""
         if self.path is not None:
-            with contextlib.suppress(OSError):
-                os.rmdir(self.path)
+            for _ in range(REMOVE_TRIES):
+                try:
+                    os.rmdir(self.path)
+                    break
+                except OSError as exc:
+                    if exc.errno != errno.EBUSY:
+                        break
+                    time.sleep(0.01)
             self.path = None
 
 

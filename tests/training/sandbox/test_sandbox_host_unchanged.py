@@ -35,6 +35,7 @@ from training.sandbox import (
 )
 
 ROOT = Path(__file__).resolve().parents[3]
+CGROUPS = Path("/sys/fs/cgroup")
 LIMITS = SandboxLimits(per_call_seconds=2.0, cpu_seconds=60)
 NR_IOPRIO_GET = {"x86_64": 252, "aarch64": 31}.get(os.uname().machine)
 
@@ -260,6 +261,11 @@ def test_a_child_that_stops_reading_is_killed_not_waited_for() -> None:
     assert "stopped reading" in str(caught.value)
     assert waited < 60  # per-call limit plus slack; without a deadline it never returned
     assert sandbox._proc.returncode is not None
+    # Killed, and its cgroups gone with it (not left to a later sandbox's sweep).
+    for controller in ("pids", "memory"):
+        folder = CGROUPS / controller
+        if folder.exists():
+            assert not list(folder.rglob(f"racecraft-sandbox-{sandbox.pid}"))
 
 
 REFRESH_HEARTBEAT = """
