@@ -3,7 +3,10 @@ tasks may ask for. Every function is keyword-only, named ``<entity>_<action>``, 
 :class:`ServiceError` (or :class:`RewardRejected`, which carries structured reward errors) with
 a message a user can act on. Side effects on other processes start only after the commit.
 
-- :mod:`~training.services.models`: create, clone, import, delete a model.
+- :mod:`~training.services.models`: create, clone, delete a model, change its reward function.
+- :mod:`~training.services.model_imports`: a model from an uploaded archive.
+- :mod:`~training.services.model_files`: what a model's folder in the store says about it;
+  a store failure as a user reads it.
 - :mod:`~training.services.jobs`: the one state machine of training and evaluation jobs.
 - :mod:`~training.services.records`: what a running job records besides its status (a
   checkpoint exists, where an evaluation's logs are).
@@ -46,14 +49,9 @@ from training.services.jobs import (
     model_settle,
     training_start,
 )
-from training.services.models import (
-    model_clone,
-    model_create,
-    model_delete,
-    model_import,
-    model_metadata,
-    model_update_reward,
-)
+from training.services.model_files import model_metadata
+from training.services.model_imports import model_import
+from training.services.models import model_clone, model_create, model_delete, model_update_reward
 from training.services.racing import (
     RACE_DEFAULTS,
     SUPPORTED_RACE_TYPES,

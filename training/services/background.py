@@ -41,7 +41,8 @@ from training.errors import ServiceError
 from training.models import RacingModel
 from training.services.checks import check_model_quota, check_name
 from training.services.downloads import car_archive_stored, car_model_archive
-from training.services.models import model_import, store_failure
+from training.services.model_files import store_failure
+from training.services.model_imports import model_import
 from training.storage import ObjectNotFound, StoreError, StoreUnavailable
 from training.store import get_store
 

@@ -14,7 +14,7 @@ from training.interchange.export import (
 )
 from training.models import EvaluationJob, RacingModel
 from training.rl.checkpoints import CheckpointError, load_checkpoint
-from training.services.models import model_metadata, store_failure
+from training.services.model_files import model_metadata, store_failure
 from training.storage import ObjectNotFound, StoreError, StoreUnavailable
 from training.store import get_store, keys_for
 

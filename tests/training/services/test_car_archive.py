@@ -11,7 +11,7 @@ from training.interchange import carmodel
 from training.models import RacingModel
 from training.rl.checkpoints import checkpoint_bytes
 from training.services import background, downloads, model_create
-from training.services.models import model_metadata
+from training.services.model_files import model_metadata
 from training.store import get_store, keys_for
 
 pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("store_dir")]

@@ -12,7 +12,7 @@ from training import services
 from training.models import RacingModel
 from training.services import RewardRejected, ServiceError
 from training.services.checks import MAX_TRAINING_TRACKS
-from training.services.models import training_params
+from training.services.model_files import training_params
 from training.worker.common import env_spec
 
 pytestmark = [pytest.mark.django_db, pytest.mark.usefixtures("store_dir")]
@@ -102,7 +102,7 @@ def test_an_exported_multi_track_model_imports_with_its_tracks(alice, ppo_discre
 
 
 def test_unknown_or_repeated_imported_tracks_are_left_out() -> None:
-    from training.services.models import _imported_extra_tracks
+    from training.services.model_imports import _imported_extra_tracks
 
     params = {"RACECRAFT_TRACKS": "racecraft_oval:native,nowhere:cw,racecraft_summit,"
               "racecraft_summit:native,racecraft_technical:sideways"}  # fmt: skip

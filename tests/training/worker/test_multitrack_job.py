@@ -19,7 +19,7 @@ from racing.tracks import TrackCatalog
 from tests.support import train_in_thread
 from training import services
 from training.models import EpisodeMetric, RacingModel
-from training.services.models import TRAINING_PARAMS
+from training.services.model_files import TRAINING_PARAMS
 from training.store import get_store, keys_for
 
 pytestmark = [pytest.mark.django_db(transaction=True), pytest.mark.slow]
