@@ -2,7 +2,7 @@
 
 While someone watches a lockstep job (the console's default), the trainer drives the
 evaluation env with a frozen copy of the policy during every policy update (the "spare lap"
-that keeps the live view going, :class:`training.rl.runner._Spectator`), and the training envs
+that keeps the live view going, :class:`training.rollout.lockstep.Spectator`), and the training envs
 render a frame per step. Both take cycles from the update on a 2-core machine. This bench runs
 each seed twice in one process, unwatched then watched, with the console's defaults otherwise
 (:func:`bench_training.run_one`'s configuration: DeepRacer's defaults or the racing preset, 8

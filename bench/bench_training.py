@@ -54,8 +54,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 from console.launcher import EmbeddedRedis, Supervisor  # noqa: E402
 from training.rewards.examples import example_source  # noqa: E402
 from training.rl.presets import DEEPRACER_DEFAULTS, RACING, Preset  # noqa: E402
-from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks  # noqa: E402
-from training.rl.streamed import train  # noqa: E402
+from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train  # noqa: E402
+from training.rl.simulation import launch_local  # noqa: E402
 from training.rollout.backends import LocalRollouts, StreamRollouts  # noqa: E402
 from training.rollout.envs import EnvSpec  # noqa: E402
 
@@ -244,7 +244,7 @@ def track_spec(track: str, tracks_dir: Path, scratch: Path, preset: Preset) -> E
 def rollouts(mode: str, redis_url: str) -> LocalRollouts | StreamRollouts:
     """What a console job gets in ``mode``: 2 sandboxed workers on this machine."""
     if mode == "streams":
-        return StreamRollouts(redis_url=redis_url, workers=2, prefix="bench:")
+        return StreamRollouts(redis_url=redis_url, workers=2, launch=launch_local, prefix="bench:")
     return LocalRollouts(num_workers=2)
 
 

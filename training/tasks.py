@@ -22,7 +22,6 @@ from django.db import close_old_connections
 
 from training import dispatch, services, store
 from training.rl.simulation import serve_simulation
-from training.rollout.remote import serve_rollout
 from training.services.analysis import replay_run
 from training.services.background import car_export_run, model_import_run, uploads_prune
 from training.services.rewards import reward_validation_run
@@ -41,13 +40,6 @@ def train_model(self, job_id: int) -> str:
 @shared_task(name=dispatch.EVALUATE_MODEL, **_JOB_TASK)
 def evaluate_model(self, evaluation_id: int) -> str:
     return run_evaluation_job(evaluation_id, worker=self.request.hostname or "")
-
-
-@shared_task(name=dispatch.SIMULATE_ROLLOUT, acks_late=False)
-def simulate_rollout(**kwargs) -> str:
-    """A rollout worker for a trainer on another machine (queue ``simulation``). Acknowledged
-    early: a lost rollout worker is the trainer's error to report, never a task to replay."""
-    return serve_rollout(**kwargs)
 
 
 @shared_task(name=SIMULATE_EPISODES, acks_late=False)

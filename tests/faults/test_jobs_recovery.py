@@ -17,7 +17,9 @@ from django.utils import timezone
 from training import dispatch, services
 from training.models import IterationMetric, JobStatus, RacingModel, TrainingJob
 from training.rl import runner
-from training.rl.runner import EvaluationOutcome, TrainingConfig, TrainingHooks, TrainingLoop
+from training.rl.runner import EvaluationOutcome, TrainingConfig, TrainingHooks
+from training.rollout.envs import EnvSpec
+from training.rollout.experience import Experience
 from training.services import ServiceError
 from training.store import get_store, keys_for
 from training.worker.training import _initial_checkpoint
@@ -104,23 +106,48 @@ def test_the_runner_keeps_the_best_so_far_unless_beaten(monkeypatch, best_score,
     resumed with a best of 45%, only the 50% iteration replaces it."""
     scores = iter([30.0, 50.0, 40.0])
 
-    def fake_init(self, config, hooks=None):
-        self.config, self.hooks = config, hooks
-        self.started = self.deadline = 0.0
-        self.deadline = float("inf")
-        self.rows, self.episode_steps, self.episode_rewards, self.episode_progress = [], [], [], []
-        self._stop, self.rollout_done_at = None, 0.0
-        self.model = type("M", (), {"num_timesteps": 0})()
-        self._iteration, self.spectator = 0, runner._Spectator(self)  # never drives: no PPO
+    class Scripted:
+        """Gathers one step a time and evaluates each policy at the next score."""
 
-    monkeypatch.setattr(TrainingLoop, "__init__", fake_init)
-    monkeypatch.setattr(TrainingLoop, "_rollout_and_update", lambda self: None)
-    monkeypatch.setattr(TrainingLoop, "checkpoint", lambda self: b"ckpt")
-    monkeypatch.setattr(TrainingLoop, "close", lambda self: None)
-    outcome = lambda self: EvaluationOutcome([next(scores)], ["off_track"], [[]], [0.0])  # noqa: E731
-    monkeypatch.setattr(TrainingLoop, "evaluate", outcome)
+        env = None
+
+        def start(self, learner) -> None:
+            pass
+
+        def gather(self, learner) -> Experience:
+            learner.model.num_timesteps += 1
+            return Experience(steps=1, episodes=[], rows=[], rollout_s=0.0)
+
+        def evaluate(self, learner, iteration: int) -> None:
+            learner.evaluated(iteration, EvaluationOutcome([next(scores)], ["off_track"], [[]],
+                                                           [0.0]), 0.0)  # fmt: skip
+
+        def finish(self, learner) -> None:
+            pass
+
+        def close(self) -> None:
+            pass
+
+    class Model:
+        num_timesteps = 0
+
+        def train(self) -> None:
+            pass
+
+        def set_logger(self, logger) -> None:
+            pass
+
+        def save(self, buffer) -> None:
+            buffer.write(b"ckpt")
+
+    class Backend:
+        def experience(self, request):
+            return Scripted()
+
+    monkeypatch.setattr(runner, "build_model", lambda *args, **kwargs: Model())
     hooks = _Recorder(stop_after=3)
-    config = TrainingConfig(spec=None, best_score=best_score)  # type: ignore[arg-type]
+    config = TrainingConfig(spec=EnvSpec(track="racecraft_oval"), best_score=best_score,
+                            rollouts=Backend())  # fmt: skip
     summary = runner.train(config, hooks)
     assert [r.best for r in hooks.results] == expected
     assert summary.best_eval_progress == 50.0

@@ -16,10 +16,11 @@ from pathlib import Path
 import pytest
 
 from training.rl.hyperparams import parse_hyperparameters
-from training.rl.runner import TrainingConfig, TrainingHooks
-from training.rl.streamed import StreamedTrainingLoop, train
+from training.rl.runner import TrainingConfig, TrainingHooks, TrainingLoop, train
+from training.rl.simulation import launch_local
 from training.rollout.backends import StreamRollouts
 from training.rollout.envs import EnvSpec
+from training.rollout.streamed import StreamedExperience
 
 pytestmark = pytest.mark.slow
 ACTIONS = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
@@ -36,7 +37,9 @@ def _config(redis_url: str, prefix: str, **overrides) -> TrainingConfig:
         "max_minutes": 60,
         "reward_source": REWARD,
         "eval_episodes": 2,
-        "rollouts": StreamRollouts(redis_url=redis_url, workers=2, prefix=prefix),
+        "rollouts": StreamRollouts(
+            redis_url=redis_url, workers=2, launch=launch_local, prefix=prefix
+        ),
     }
     values.update(overrides)
     return TrainingConfig(**values)
@@ -47,14 +50,14 @@ class KillOneWorker(TrainingHooks):
 
     def __init__(self, iterations: int) -> None:
         self.iterations = iterations
-        self.loop: StreamedTrainingLoop | None = None
+        self.source: StreamedExperience | None = None
         self.results = []
         self.killed: int | None = None
 
     def on_episode(self, entry: dict) -> None:
-        loop = self.loop
-        if self.killed is None and loop is not None and loop.episodes_total == QUOTA + 1:
-            process = loop.slots[0].process
+        source = self.source
+        if self.killed is None and source is not None and source.episodes_total == QUOTA + 1:
+            process = source.slots[0].process
             self.killed = process.pid
             os.kill(process.pid, signal.SIGKILL)
 
@@ -67,26 +70,26 @@ class KillOneWorker(TrainingHooks):
 
 def test_a_simulation_worker_killed_mid_iteration_costs_no_iteration(redis_url, settings):
     hooks = KillOneWorker(iterations=3)
-    loop = StreamedTrainingLoop(_config(redis_url, settings.REDIS_PREFIX), hooks)
-    hooks.loop = loop
+    loop = TrainingLoop(_config(redis_url, settings.REDIS_PREFIX), hooks)
+    assert isinstance(loop.source, StreamedExperience)
+    hooks.source = source = loop.source
     summary = loop.run()
     assert hooks.killed is not None
-    n = summary.iterations  # 3, or 4 when an update finished after the stop request
+    n = summary.iterations
     assert n >= 3 and [r.iteration for r in hooks.results] == list(range(1, n + 1))
     assert all(r.episodes == QUOTA for r in hooks.results)  # no iteration short or lost
-    tickets = loop.counted_tickets
+    tickets = source.counted_tickets
     assert len(tickets) == len(set(tickets))  # no episode counted twice
     for version in range(n):
         assert sum(t.startswith(f"{version}:") for t in tickets) == QUOTA
-    assert loop.deaths == 1 and loop.slots[0].restarts == 1  # noticed, and started again
+    assert source.deaths == 1 and source.slots[0].restarts == 1  # noticed, and started again
 
 
 TRAINER = """
 import json, sys
 from pathlib import Path
 from tests.faults.test_simulation_faults import _config
-from training.rl.runner import TrainingHooks
-from training.rl.streamed import train
+from training.rl.runner import TrainingHooks, train
 
 class Save(TrainingHooks):
     def on_iteration(self, result, checkpoint, rows):

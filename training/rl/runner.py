@@ -1,48 +1,40 @@
-"""The training loop, as DeepRacer runs it, on stable-baselines3. No Django here: the job that
-runs it (``training.worker``) passes in where rollouts run (a :class:`RolloutBackend`) and
-turns the hooks into database rows, stored objects and websocket messages.
+"""The training loop, as DeepRacer runs it, on stable-baselines3: one loop whatever the
+simulation. No Django here: the job that runs it (``training.worker``) passes in a backend
+(:mod:`training.rollout.backends`), which picks where experience comes from (an
+:class:`~training.rollout.experience.ExperienceSource`: envs stepped in lockstep here, or
+simulation workers that stream whole episodes), and turns the hooks into database rows, stored
+objects and websocket messages.
 
-One iteration: the rollout workers drive about ``num_episodes_between_training`` episodes with
-the current policy; the policy is updated; evaluation episodes measure the new policy's track
-completion; a metrics row, the sim-trace of the iteration and the checkpoint (best and last) go
-to the hooks. The stop flag and the time limit are checked on every step and between phases, so
-stopping always leaves the last finished iteration's checkpoint.
+One iteration, as SB3's ``learn()``: the source gathers about ``num_episodes_between_training``
+episodes with the current policy; the policy is updated (PPO's ``train``; SAC learns as it
+drives); the source has the new policy evaluated (at once in lockstep; by the simulation
+workers during the next rollout when streamed); when its evaluation is in, a metrics row, the
+sim-trace of the iteration and the checkpoint (best and last) go to the hooks. The stop flag
+and the time limit are checked on every step and between phases, so stopping always leaves the
+last finished iteration's checkpoint.
 """
 
 from __future__ import annotations
 
-import copy
+import dataclasses
 import io
 import logging
-import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
-from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.logger import Logger
 
-from training.rl.algorithms import (
-    DeepRacerPPO,
-    build_model,
-    load_model,
-    plan_rollout_steps,
-    resolve_device,
-    set_torch_threads,
-)
+from training.rl.algorithms import build_model, load_model, resolve_device, set_torch_threads
 from training.rl.hyperparams import Hyperparameters
 from training.rl.policies import LEAN
 from training.rollout.backends import LocalRollouts, RolloutBackend
-from training.rollout.envs import FRAME_INTERVAL_S, EnvSpec
+from training.rollout.envs import EnvSpec
+from training.rollout.experience import EvaluationOutcome, ExperienceRequest, ExperienceSource
 
 log = logging.getLogger(__name__)
-
-INITIAL_EPISODE_STEPS = 40.0
-"""Guess of an early episode's length (steps) before any has finished."""
-MAX_SAC_CHUNKS = 200
-"""An SAC iteration ends after this many chunks even if fewer episodes finished."""
 
 
 @dataclass
@@ -59,7 +51,7 @@ class TrainingConfig:
     reward_function: Callable[[dict], float] | None = None
     num_envs: int = 8
     rollouts: RolloutBackend = field(default_factory=LocalRollouts)
-    """Where training episodes run; evaluation episodes always run on this machine."""
+    """Where the experience comes from (:mod:`training.rollout.backends`)."""
     seed: int = 0
     eval_episodes: int = 5
     eval_laps: int = 1
@@ -71,24 +63,6 @@ class TrainingConfig:
     torch_threads: int = 2
     device: str = "auto"
     """Where the trainer's networks live (:func:`~training.rl.algorithms.resolve_device`)."""
-
-
-@dataclass
-class EvaluationOutcome:
-    """Deterministic-policy episodes after an update."""
-
-    progress: list[float]
-    statuses: list[str]
-    lap_times: list[list[float]]
-    rewards: list[float]
-
-    @property
-    def mean_progress(self) -> float:
-        return float(np.mean(self.progress)) if self.progress else 0.0
-
-    @property
-    def all_laps_complete(self) -> bool:
-        return bool(self.statuses) and all(s == "lap_complete" for s in self.statuses)
 
 
 @dataclass
@@ -154,152 +128,57 @@ def evaluation_spec(config: TrainingConfig) -> EnvSpec:
     return config.spec
 
 
-class _StepWatcher(BaseCallback):
-    """Collects what workers report each step and stops rollouts when asked to."""
-
-    def __init__(self, loop: TrainingLoop) -> None:
-        super().__init__()
-        self.loop = loop
-
-    def _on_step(self) -> bool:
-        loop = self.loop
-        for info in self.locals.get("infos", ()):
-            loop.collect(info)
-        if loop.hooks.frames_wanted() != loop.venv.want_frames:
-            loop.venv.want_frames = loop.hooks.frames_wanted()
-        return not loop.stop_reason()
-
-    def _on_rollout_start(self) -> None:
-        self.loop.spectator.stop()
-
-    def _on_rollout_end(self) -> None:
-        self.loop.rollout_done_at = time.monotonic()
-        self.loop.spectator.start(self.loop._iteration + 1)
-
-
-class _Spectator:
-    """Keeps the live view going while the policy updates: drives the evaluation env with a
-    frozen copy of the policy that drove the rollout, at the view's pace (15 steps a second of
-    real time), from the rollout's end until the evaluation; and with the evaluated policy from
-    the evaluation's end while the iteration is logged, until the next rollout. Only when
-    someone watches. Its laps are for the eyes: nothing is scored or logged, and an error in
-    one only ends it (the evaluation that follows reports it)."""
-
-    def __init__(self, loop: TrainingLoop) -> None:
-        self.loop = loop
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-
-    def start(self, iteration: int) -> None:
-        """Drive with the policy as it is now, labelled ``iteration`` (the one it belongs to)."""
-        loop = self.loop
-        if self._thread is not None or not isinstance(loop.model, DeepRacerPPO):
-            return  # SAC learns between short stretches of driving: no long pause to fill
-        if not loop.hooks.frames_wanted():
-            return
-        policy = copy.deepcopy(loop.model.policy)  # the update changes the trainer's in place
-        policy.set_training_mode(False)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._drive, args=(policy, iteration),
-                                        name="spectator", daemon=True)  # fmt: skip
-        self._thread.start()
-
-    def stop(self) -> None:
-        if self._thread is not None:
-            self._stop.set()
-            self._thread.join()
-            self._thread = None
-
-    def _drive(self, policy, iteration: int) -> None:
-        venv, hooks, stop = self.loop.eval_venv, self.loop.hooks, self._stop
-        try:
-            venv.want_frames = True
-            obs = venv.reset()
-            due = time.monotonic()
-            while not stop.is_set():
-                with torch.no_grad():
-                    actions, _ = policy.predict(obs, deterministic=True)
-                obs, _rewards, _dones, infos = venv.step(actions)  # ends reset by themselves
-                frame = infos[0].pop("frame", None)
-                if frame is not None:
-                    hooks.on_frame({**frame, "phase": "evaluation", "iteration": iteration,
-                                    "spare": True})  # fmt: skip
-                due += FRAME_INTERVAL_S
-                stop.wait(max(0.0, due - time.monotonic()))
-        except Exception:  # noqa: BLE001 - the video is never worth the training
-            log.warning("the live view's lap during the update stopped", exc_info=True)
+def experience_request(config: TrainingConfig) -> ExperienceRequest:
+    """What the experience source needs to know of ``config``."""
+    return ExperienceRequest(
+        spec=config.spec, eval_spec=evaluation_spec(config), algorithm=config.algorithm,
+        network=config.network, hyperparameters=dataclasses.asdict(config.hyperparameters),
+        episodes_per_update=config.hyperparameters.num_episodes_between_training,
+        num_envs=config.num_envs, eval_episodes=config.eval_episodes,
+        spread_eval_starts=config.eval_laps == 1 and not config.eval_from_start_line,
+        seed=config.seed, reward_source=config.reward_source,
+        reward_function=config.reward_function,
+    )  # fmt: skip
 
 
 class TrainingLoop:
-    """Runs iterations until the time limit or a stop request. Use :func:`train`."""
+    """Runs iterations until the time limit or a stop request (see the module's docstring).
+    Use :func:`train`."""
 
     def __init__(self, config: TrainingConfig, hooks: TrainingHooks | None = None) -> None:
         self.config = config
         self.hooks = hooks or TrainingHooks()
         self.started = time.monotonic()
         self.deadline = self.started + config.max_minutes * 60
-        self.rows: list[list] = []
-        self.episode_steps: list[int] = []
-        self.episode_rewards: list[float] = []
-        self.episode_progress: list[float] = []
         self._stop: str | None = None
-        self.rollout_done_at = 0.0
         self._iteration = 0
-        self.spectator = _Spectator(self)
-        self.longest_seen = 0  # steps of the longest episode seen so far, finished or not
+        self._waiting: deque[tuple[IterationResult, bytes, list[list]]] = deque()
+        self.emitted = 0
+        self.total_steps = 0
+        self.best_progress = -1.0 if config.best_score is None else float(config.best_score)
+        self.best_iteration: int | None = None
         set_torch_threads(config.torch_threads)
         device = resolve_device(config.device)  # before any process starts: fail fast
-        self.venv: VecEnv = config.rollouts.make(
-            config.spec,
-            config.num_envs,
-            reward_source=config.reward_source,
-            reward_function=config.reward_function,
-            phase="training",
-        )
-        self.eval_venv: VecEnv = LocalRollouts(num_workers=1).make(
-            evaluation_spec(config),
-            config.eval_episodes,
-            reward_source=config.reward_source,
-            reward_function=config.reward_function,
-            phase="evaluation",
-        )
-        self.venv.seed(config.seed)
-        if config.initial_checkpoint is not None:
-            self.model = load_model(
-                config.algorithm,
-                config.initial_checkpoint,
-                self.venv,
-                config.hyperparameters,
-                network=config.network,
-                seed=config.seed,
-                device=device,
-            )
-        else:
-            self.model = build_model(
-                config.algorithm,
-                self.venv,
-                config.hyperparameters,
-                network=config.network,
-                seed=config.seed,
-                device=device,
-            )
+        self.source: ExperienceSource = config.rollouts.experience(experience_request(config))
+        try:
+            if config.initial_checkpoint is not None:
+                self.model = load_model(config.algorithm, config.initial_checkpoint,
+                                        self.source.env, config.hyperparameters,
+                                        network=config.network, seed=config.seed,
+                                        device=device)  # fmt: skip
+            else:
+                self.model = build_model(config.algorithm, self.source.env, config.hyperparameters,
+                                         network=config.network, seed=config.seed,
+                                         device=device)  # fmt: skip
+            self.model.set_logger(Logger(folder=None, output_formats=[]))
+        except BaseException:
+            self.source.close()
+            raise
 
-    # -------------------------------------------------------------------- step bookkeeping
-    def collect(self, info: dict) -> None:
-        trace = info.get("trace")
-        if trace is not None:
-            self.rows.append(trace)
-            if isinstance(trace[1], int) and trace[1] > self.longest_seen:
-                self.longest_seen = trace[1]
-        frame = info.get("frame")
-        if frame is not None:
-            self.hooks.on_frame({**frame, "phase": "training", "iteration": self._iteration + 1})
-        entry = info.get("episode_entry")
-        if entry is not None:
-            self.episode_steps.append(int(entry.get("steps", 0)))
-            self.episode_rewards.append(float(entry.get("total_reward", 0.0)))
-            self.episode_progress.append(float(entry.get("progress", 0.0)))
-            self.hooks.on_episode(entry)
+    @property
+    def iteration(self) -> int:
+        """Policy updates finished so far."""
+        return self._iteration
 
     def stop_reason(self) -> str | None:
         if self._stop is None:
@@ -309,121 +188,59 @@ class TrainingLoop:
                 self._stop = "user"
         return self._stop
 
-    # -------------------------------------------------------------------- phases
-    def _rollout_and_update(self) -> None:
-        model = self.model
-        hp = self.config.hyperparameters
-        if isinstance(model, DeepRacerPPO):
-            # PPO learns from one rollout: size it so that about N episodes fit in it.
-            recent = self.episode_steps[-50:]
-            mean_len = (
-                float(np.mean(recent))
-                if recent
-                else max(INITIAL_EPISODE_STEPS, float(self.longest_seen))
-            )
-            n_steps = plan_rollout_steps(hp.num_episodes_between_training, mean_len, model.n_envs)
-            model.set_rollout_steps(n_steps)
-            self._learn(n_steps * model.n_envs)
-            return
-        # SAC learns as it drives: drive on in chunks until N more episodes have finished.
-        target = len(self.episode_steps) + hp.num_episodes_between_training
-        chunk = max(64, 16 * model.n_envs)
-        for _ in range(MAX_SAC_CHUNKS):
-            self._learn(chunk)
-            if len(self.episode_steps) >= target or self.stop_reason():
-                break
-
-    def _learn(self, steps: int) -> None:
-        self.model.learn(
-            total_timesteps=steps,
-            reset_num_timesteps=False,
-            callback=_StepWatcher(self),
-            progress_bar=False,
-        )
-
-    def evaluate(self) -> EvaluationOutcome:
-        """One deterministic episode per eval env (starts spread round the track)."""
-        venv = self.eval_venv
-        n = venv.num_envs
-        if not self.config.eval_from_start_line and self.config.eval_laps == 1:
-            venv.set_options([{"start_progress": 100.0 * i / n} for i in range(n)])
-        obs = venv.reset()
-        done = np.zeros(n, dtype=bool)
-        outcome = EvaluationOutcome([0.0] * n, [""] * n, [[] for _ in range(n)], [0.0] * n)
-        iteration = self._iteration + 1
-        while not done.all():
-            # The live view shows the evaluation lap too: a gap only while the policy updates.
-            venv.want_frames = self.hooks.frames_wanted()
-            actions, _ = self.model.predict(obs, deterministic=True)
-            obs, rewards, dones, infos = venv.step(actions)
-            # The first car's frames (it drives on after its episode while the others finish).
-            frame = infos[0].pop("frame", None)
-            if frame is not None:
-                self.hooks.on_frame({**frame, "phase": "evaluation", "iteration": iteration})
-            for i in np.flatnonzero(~done):
-                outcome.rewards[i] += float(rewards[i])
-                info = infos[i]
-                if dones[i]:
-                    done[i] = True
-                    outcome.progress[i] = float(info["progress"])
-                    outcome.statuses[i] = str(info["status"])
-                    outcome.lap_times[i] = list(info.get("lap_times", []))
-            if self.stop_reason():
-                break
-        return outcome
-
     def run(self) -> TrainingSummary:
-        best_progress, best_iteration = -1.0, None
-        if self.config.best_score is not None:
-            best_progress = float(self.config.best_score)
-        total_steps = 0
         try:
+            self.source.start(self)
             while not self.stop_reason():
-                t0 = time.monotonic()
-                first_episode = len(self.episode_steps)
-                steps_before = self.model.num_timesteps
-                try:
-                    self._rollout_and_update()
-                finally:
-                    self.spectator.stop()
+                experience = self.source.gather(self)
+                if experience is None:
+                    break  # an interrupted rollout is not learnt from
                 t1 = time.monotonic()
+                if experience.learned_s is None:
+                    self.model.train()
+                update_s = time.monotonic() - t1 + (experience.learned_s or 0.0)
                 if self.stop_reason():
-                    break  # an interrupted rollout was not learned from
-                evaluation = self.evaluate()
-                t2 = time.monotonic()
+                    break  # stopped during the update: the last finished iteration stands
                 self._iteration += 1
-                total_steps = self.model.num_timesteps
-                rewards = self.episode_rewards[first_episode:]
-                progress = self.episode_progress[first_episode:]
+                rewards = [r for r, _ in experience.episodes]
+                progress = [p for _, p in experience.episodes]
                 result = IterationResult(
-                    iteration=self._iteration,
-                    episodes=len(rewards),
-                    steps=total_steps - steps_before,
-                    total_steps=total_steps,
+                    iteration=self._iteration, episodes=len(experience.episodes),
+                    steps=experience.steps, total_steps=self.model.num_timesteps,
                     train_reward=float(np.mean(rewards)) if rewards else 0.0,
                     train_progress=float(np.mean(progress)) if progress else 0.0,
-                    evaluation=evaluation,
-                    elapsed_s=t2 - self.started,
-                    rollout_s=max(0.0, self.rollout_done_at - t0),
-                    update_s=max(0.0, t1 - max(self.rollout_done_at, t0)),
-                    eval_s=t2 - t1,
-                )
-                if evaluation.mean_progress > best_progress:
-                    best_progress, best_iteration = evaluation.mean_progress, self._iteration
-                    result.best = True
-                rows, self.rows = self.rows, []
-                self.spectator.start(self._iteration)  # while the iteration is stored and logged
-                self.hooks.on_iteration(result, self.checkpoint(), rows)
+                    evaluation=EvaluationOutcome([], [], [], []), elapsed_s=0.0,
+                    rollout_s=experience.rollout_s, update_s=update_s, eval_s=0.0,
+                )  # fmt: skip
+                self._waiting.append((result, self.checkpoint(), experience.rows))
+                self.source.evaluate(self, self._iteration)
+            self.source.finish(self)
         finally:
             self.close()
         return TrainingSummary(
-            iterations=self._iteration,
-            total_steps=total_steps,
-            best_iteration=best_iteration,
-            best_eval_progress=max(best_progress, 0.0),
+            iterations=self.emitted,
+            total_steps=self.total_steps,
+            best_iteration=self.best_iteration,
+            best_eval_progress=max(self.best_progress, 0.0),
             stopped_by=self._stop or "finished",
             elapsed_s=time.monotonic() - self.started,
         )
+
+    def evaluated(self, iteration: int, outcome: EvaluationOutcome, wall_s: float) -> None:
+        """An iteration's evaluation is in: its metrics row, checkpoint and sim-trace go out."""
+        while self._waiting and self._waiting[0][0].iteration < iteration:
+            self._waiting.popleft()  # never evaluated (sources hand back in order)
+        if not self._waiting or self._waiting[0][0].iteration != iteration:
+            return
+        result, checkpoint, rows = self._waiting.popleft()
+        result.evaluation, result.eval_s = outcome, wall_s
+        result.elapsed_s = time.monotonic() - self.started
+        if outcome.mean_progress > self.best_progress:
+            self.best_progress, self.best_iteration = outcome.mean_progress, iteration
+            result.best = True
+        self.emitted += 1
+        self.total_steps = result.total_steps
+        self.hooks.on_iteration(result, checkpoint, rows)
 
     def checkpoint(self) -> bytes:
         buffer = io.BytesIO()
@@ -431,15 +248,9 @@ class TrainingLoop:
         return buffer.getvalue()
 
     def close(self) -> None:
-        self.spectator.stop()
-        for venv in (self.venv, self.eval_venv):
-            try:
-                venv.close()
-            except Exception:  # noqa: BLE001 - closing must not hide the real error
-                pass
+        self.source.close()
 
 
 def train(config: TrainingConfig, hooks: TrainingHooks | None = None) -> TrainingSummary:
-    """Train until ``config.max_minutes`` pass or ``hooks.should_stop()`` says so, stepping the
-    envs from here (jobs call :func:`training.rl.streamed.train`, which picks the way)."""
+    """Train until ``config.max_minutes`` pass or ``hooks.should_stop()`` says so."""
     return TrainingLoop(config, hooks).run()

@@ -1,120 +1,86 @@
-"""Where rollouts run. The training loop asks a backend for vectorised envs and never learns
-which one it got; the job that starts the loop (``training.worker``) chooses it.
+"""Where a training job's experience comes from. The job that starts the loop
+(``training.worker``) picks a backend; the backend picks the experience source for the run
+(:mod:`training.rollout.experience`), so the loop never learns which one it got.
 
-- :class:`LocalRollouts`: sandboxed worker processes on this machine (a user's reward), or the
-  trainer's own process for a trusted callable (tests, benchmarks).
-- :class:`RedisRollouts`: sandboxed workers on other machines, reached through Redis. How a
-  worker is started there (a Celery task on the ``simulation`` queue) is a callable the job
-  passes in, so this package knows nothing of Celery.
+- :class:`LocalRollouts`: the trainer steps envs in lockstep, in sandboxed worker processes on
+  this machine (a user's reward) or in its own process for a trusted callable (tests,
+  benchmarks).
+- :class:`StreamRollouts`: simulation workers that own their episodes and stream them through
+  Redis, as local processes or as tasks on the ``simulation`` queue of other machines (how a
+  worker is started is a callable the job passes in, so this package knows nothing of Celery).
+  It serves PPO on a user's camera-only reward; SAC (which learns after every step, so it cannot
+  wait on the network), a trusted in-process reward (which cannot travel) and a LIDAR
+  observation run in lockstep on the trainer's machine instead.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
-from stable_baselines3.common.vec_env import VecEnv
+from gymnasium import spaces
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from training.rollout.envs import EnvSpec
-from training.rollout.remote import LaunchWorker, RemoteVecEnv
-from training.rollout.vecenv import LocalVecEnv, RolloutError, SandboxedVecEnv
-
-RewardCallable = Callable[[dict], float]
+from training.rollout.experience import ExperienceRequest, ExperienceSource, RewardCallable
+from training.rollout.lockstep import LockstepExperience
+from training.rollout.streamed import LaunchWorker, StreamedExperience
+from training.rollout.vecenv import LocalVecEnv, SandboxedVecEnv
 
 
 class RolloutBackend(Protocol):
-    """Makes the envs one phase of training drives."""
+    """Builds the experience source of one training run."""
 
-    def make(
-        self,
-        spec: EnvSpec,
-        num_envs: int,
-        *,
-        reward_source: str | None,
-        reward_function: RewardCallable | None,
-        phase: str,
-    ) -> VecEnv: ...
+    def experience(self, request: ExperienceRequest) -> ExperienceSource: ...
+
+
+def make_envs(spec: EnvSpec, num_envs: int, *, reward_source: str | None,
+              reward_function: RewardCallable | None, num_workers: int = 2) -> VecEnv:  # fmt: skip
+    """``num_envs`` envs of ``spec`` stepped together: in ``num_workers`` sandboxed processes for a
+    user's ``reward_source``, in this process for a trusted ``reward_function``."""
+    if reward_source is not None:
+        return SandboxedVecEnv(spec, num_envs, reward_source, num_workers=num_workers)
+    return LocalVecEnv(spec, num_envs, reward_function)
 
 
 @dataclass(frozen=True)
 class LocalRollouts:
-    """``num_workers`` sandboxed processes on this machine for a user's ``reward_source``;
-    the trainer's own process for a trusted ``reward_function``."""
+    """Lockstep: ``num_workers`` sandboxed processes on this machine drive the training cars,
+    one more drives the evaluation episodes."""
 
     num_workers: int = 2
 
-    def make(
-        self,
-        spec: EnvSpec,
-        num_envs: int,
-        *,
-        reward_source: str | None,
-        reward_function: RewardCallable | None,
-        phase: str,
-    ) -> VecEnv:
-        if reward_source is not None:
-            return SandboxedVecEnv(spec, num_envs, reward_source, num_workers=self.num_workers)
-        return LocalVecEnv(spec, num_envs, reward_function)
-
-
-@dataclass(frozen=True)
-class RedisRollouts:
-    """``slots`` sandboxed workers on simulation machines, each started by ``launch`` and
-    exchanging messages with the trainer through the Redis at ``redis_url``."""
-
-    launch: LaunchWorker
-    redis_url: str
-    slots: int
-    prefix: str = ""
-
-    def make(
-        self,
-        spec: EnvSpec,
-        num_envs: int,
-        *,
-        reward_source: str | None,
-        reward_function: RewardCallable | None,
-        phase: str,
-    ) -> VecEnv:
-        if reward_source is None:
-            raise RolloutError("remote rollouts run a reward function's source, not a callable")
-        return RemoteVecEnv(
-            spec,
-            num_envs,
-            reward_source,
-            launch=self.launch,
-            num_slots=self.slots,
-            redis_url=self.redis_url,
-            prefix=self.prefix,
-            phase=phase,
-        )
+    def experience(self, request: ExperienceRequest) -> ExperienceSource:
+        kwargs = {"reward_source": request.reward_source,
+                  "reward_function": request.reward_function}  # fmt: skip
+        venv = make_envs(request.spec, request.num_envs, num_workers=self.num_workers, **kwargs)
+        try:
+            eval_venv = make_envs(request.eval_spec, request.eval_episodes, num_workers=1,
+                                  **kwargs)  # fmt: skip
+        except BaseException:
+            venv.close()
+            raise
+        return LockstepExperience(request, venv, eval_venv)
 
 
 @dataclass(frozen=True)
 class StreamRollouts:
-    """Simulation workers that own their episodes (:mod:`training.rollout.streams`): ``workers``
-    of them, each started by ``launch`` (a Celery task on the ``simulation`` queue), or as
-    processes of this machine when ``launch`` is None, all talking to the trainer through the
-    Redis at ``redis_url``. The training loop drives PPO this way; SAC, which learns as it
-    drives, and trusted in-process rewards keep the lockstep envs of :meth:`make`."""
+    """``workers`` simulation workers, each started by ``launch`` (a local process, or a Celery
+    task on the ``simulation`` queue), talking to the trainer through the Redis at
+    ``redis_url``. What they cannot serve runs as :class:`LocalRollouts` with as many workers
+    (see the module's docstring)."""
 
     redis_url: str
+    launch: LaunchWorker
     workers: int = 2
-    launch: LaunchWorker | None = None
     prefix: str = ""
-    streamed = True
 
-    def make(
-        self,
-        spec: EnvSpec,
-        num_envs: int,
-        *,
-        reward_source: str | None,
-        reward_function: RewardCallable | None,
-        phase: str,
-    ) -> VecEnv:
-        return LocalRollouts(num_workers=self.workers).make(
-            spec, num_envs, reward_source=reward_source, reward_function=reward_function,
-            phase=phase,
-        )  # fmt: skip
+    def experience(self, request: ExperienceRequest) -> ExperienceSource:
+        if request.on_policy and request.reward_source is not None:
+            env = DummyVecEnv([lambda: request.spec.make(None)])  # its spaces; never stepped
+            if isinstance(env.observation_space, spaces.Box):
+                return StreamedExperience(request, env, redis_url=self.redis_url,
+                                          workers=self.workers, launch=self.launch,
+                                          prefix=self.prefix)  # fmt: skip
+            env.close()
+        return LocalRollouts(num_workers=self.workers).experience(request)

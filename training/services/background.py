@@ -5,7 +5,7 @@ request (issue 10).
   stores the upload as it came in the object store under ``racecraft-uploads/`` (any worker
   machine reads it from there; no model folder can be named so), and queues
   ``training.tasks.import_model``. The worker (:func:`model_import_run`) reads the archive with
-  :func:`~training.services.models.model_import` (all or nothing) and removes the upload.
+  :func:`~training.services.model_imports.model_import` (all or nothing) and removes the upload.
 - **Car export**: :func:`car_export_ready` hands over an archive already built (the store
   keeps it at the model's ``car_export`` key); otherwise :func:`car_export_start` queues
   ``training.tasks.export_car_model``, whose worker builds it into the store
@@ -165,7 +165,7 @@ def uploads_prune(*, older_than_s: float = UPLOAD_MAX_AGE_S) -> int:
 def model_import_run(*, owner_id: int, name: str, description: str, upload_key: str) -> dict:
     """In the worker: import the stored upload (all or nothing), then remove it. The archive
     is read and converted in a bounded child process (see
-    :func:`~training.services.models.model_import`); the rows and store writes happen here.
+    :func:`~training.services.model_imports.model_import`); the rows and store writes happen here.
     Every failure comes back as a sentence with its reason."""
     try:
         owner = get_user_model().objects.get(pk=owner_id)

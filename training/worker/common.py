@@ -15,12 +15,8 @@ from racing.race import RaceConfig, RaceType
 from racing.simtrace import SIMTRACE_COLUMNS, TraceRow
 from training import dispatch
 from training.models import RacingModel
-from training.rollout.backends import (
-    LocalRollouts,
-    RedisRollouts,
-    RolloutBackend,
-    StreamRollouts,
-)
+from training.rl.simulation import launch_local
+from training.rollout.backends import LocalRollouts, RolloutBackend, StreamRollouts
 from training.rollout.envs import EnvSpec
 from training.sandbox import RewardFunctionError
 from training.services import job_fail, job_heartbeat, job_stop_requested
@@ -107,28 +103,21 @@ def env_spec(
 
 
 def rollout_backend() -> RolloutBackend:
-    """Where a training job's episodes run: ``RACECRAFT_REMOTE_ROLLOUT_SLOTS`` workers of the
-    ``simulation`` queue when it is set, else sandboxed processes on this machine.
+    """Where a training job's experience comes from (:mod:`training.rollout.backends`).
 
-    ``RACECRAFT_SIMULATION = "streams"`` gives simulation workers that own their episodes and
-    stream them through Redis (:mod:`training.rl.streamed`); ``"lockstep"`` (the default until
-    the streamed path has shown it learns as well) steps envs from the trainer."""
+    ``RACECRAFT_REMOTE_ROLLOUT_SLOTS`` > 0: that many simulation workers on the ``simulation``
+    queue (other machines), streaming whole episodes through Redis. Else
+    ``RACECRAFT_SIMULATION``: ``"streams"``, two simulation workers as processes of this machine;
+    ``"lockstep"`` (the default), the trainer steps sandboxed envs of this machine."""
     slots = int(settings.RACECRAFT_REMOTE_ROLLOUT_SLOTS)
-    if getattr(settings, "RACECRAFT_SIMULATION", "lockstep") == "streams":
-        return StreamRollouts(
-            redis_url=settings.REDIS_URL,
-            workers=slots or 2,
-            launch=functools.partial(dispatch.send, SIMULATE_EPISODES) if slots > 0 else None,
-            prefix=settings.REDIS_PREFIX or "",
-        )
-    if slots <= 0:
-        return LocalRollouts()
-    return RedisRollouts(
-        launch=functools.partial(dispatch.send, dispatch.SIMULATE_ROLLOUT),
-        redis_url=settings.REDIS_URL,
-        slots=slots,
-        prefix=settings.REDIS_PREFIX or "",
-    )
+    if slots > 0:
+        return StreamRollouts(redis_url=settings.REDIS_URL, workers=slots,
+                              launch=functools.partial(dispatch.send, SIMULATE_EPISODES),
+                              prefix=settings.REDIS_PREFIX or "")  # fmt: skip
+    if settings.RACECRAFT_SIMULATION == "streams":
+        return StreamRollouts(redis_url=settings.REDIS_URL, workers=2, launch=launch_local,
+                              prefix=settings.REDIS_PREFIX or "")  # fmt: skip
+    return LocalRollouts()
 
 
 def csv_text(rows: list[list]) -> str:

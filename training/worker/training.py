@@ -22,8 +22,7 @@ from training.models import EpisodeMetric, IterationMetric, RacingModel, Trainin
 from training.rl.algorithms import DeviceError
 from training.rl.checkpoints import CheckpointError
 from training.rl.hyperparams import parse_hyperparameters
-from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks
-from training.rl.streamed import train
+from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train
 from training.rollout.vecenv import RolloutError
 from training.sandbox import SandboxError
 from training.services.analysis import analysis_summary_update

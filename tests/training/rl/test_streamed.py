@@ -14,10 +14,17 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from training.rl.checkpoints import load_checkpoint
 from training.rl.hyperparams import parse_hyperparameters
 from training.rl.metadata import build_metadata
-from training.rl.runner import TrainingConfig, TrainingHooks
-from training.rl.streamed import episode_advantages, streamed, train, worker_count
+from training.rl.runner import TrainingConfig, TrainingHooks, experience_request, train
+from training.rl.simulation import launch_local
 from training.rollout.backends import StreamRollouts
 from training.rollout.envs import EnvSpec
+from training.rollout.lockstep import LockstepExperience
+from training.rollout.streamed import (
+    StreamedExperience,
+    episode_advantages,
+    rollout_buffer,
+    worker_count,
+)
 
 DISCRETE = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
 REWARD = """
@@ -92,7 +99,9 @@ def _config(redis_url: str, prefix: str, **overrides) -> TrainingConfig:
         "max_minutes": 60,  # the hooks stop it, however loaded the machine is
         "reward_source": REWARD,
         "eval_episodes": 2,
-        "rollouts": StreamRollouts(redis_url=redis_url, workers=2, prefix=prefix),
+        "rollouts": StreamRollouts(
+            redis_url=redis_url, workers=2, launch=launch_local, prefix=prefix
+        ),
     }
     values.update(overrides)
     return TrainingConfig(**values)
@@ -101,10 +110,9 @@ def _config(redis_url: str, prefix: str, **overrides) -> TrainingConfig:
 @pytest.mark.slow
 def test_streamed_iterations_with_evaluations_and_live_frames(redis_url, settings):
     config = _config(redis_url, settings.REDIS_PREFIX)
-    assert streamed(config)
     hooks = CollectUntilTrainingFrames(iterations=2, watch=True)
     summary = train(config, hooks)
-    # Every finished update gets its row: the one after the stop request too.
+    # Every finished update gets its row, its evaluation as far as it got at the stop.
     assert summary.stopped_by == "user" and summary.iterations >= 2
     assert [r.iteration for r in hooks.results] == list(range(1, summary.iterations + 1))
     print([(r.rollout_s, r.update_s, r.eval_s, r.evaluation.progress) for r in hooks.results])
@@ -163,7 +171,6 @@ def test_a_streamed_episode_is_on_policy_in_the_trainers_buffer(redis_url, setti
 
     from training.rl.hyperparams import Hyperparameters
     from training.rl.simulation import SimulationWorker
-    from training.rl.streamed import rollout_buffer
     from training.rollout.streams import Session, read_chunk
 
     spec = EnvSpec(track="racecraft_oval", action_space=actions)
@@ -210,11 +217,10 @@ def _chunk(ticket: str, attempt: str, seq: int, *, version: int = 0, last: bool 
 
 def test_the_trainer_counts_an_episode_once_and_only_whole_and_current(redis_url, settings):
     """Without workers: chunk messages as a dead, a slow and a repeated worker would send."""
-    from training.rl.streamed import StreamedTrainingLoop
-
-    loop = StreamedTrainingLoop(_config(redis_url, settings.REDIS_PREFIX), Collect(1))
+    config = _config(redis_url, settings.REDIS_PREFIX)
+    loop = config.rollouts.experience(experience_request(config))
+    assert isinstance(loop, StreamedExperience)
     try:
-        loop.counted, loop._partial, loop._rows, loop._episode_stats = {}, {}, [], []
         loop._take(_chunk("0:0", "dead", 0, last=False), version=0, quota=2)  # then it died
         loop._take(_chunk("0:0", "again", 0, last=False), version=0, quota=2)  # driven again
         loop._take(_chunk("0:0", "again", 2), version=0, quota=2)  # a gap: not whole
@@ -259,3 +265,28 @@ def test_a_streamed_run_on_more_tracks_than_workers_drives_every_track(redis_url
     hooks = CollectUntilEveryTrack(iterations=1)
     train(config, hooks)
     assert {e["track"] for e in hooks.episodes} == {t for t, _ in THREE_TRACKS}
+
+
+def test_the_stream_backend_serves_ppo_on_a_users_camera_reward_and_the_rest_in_lockstep(
+    redis_url, settings
+):
+    """SAC learns after every step, a trusted callable cannot travel and a LIDAR observation
+    is not streamed: those run in lockstep on the trainer's machine, with as many workers."""
+    lidar = EnvSpec(track="racecraft_oval", action_space=DISCRETE,
+                    sensors=("FRONT_FACING_CAMERA", "LIDAR"))  # fmt: skip
+    cases = {
+        "ppo": ({}, StreamedExperience),
+        "trusted": ({"reward_source": None, "reward_function": lambda params: 1.0},
+                    LockstepExperience),
+        "sac": ({"algorithm": "sac", "spec": EnvSpec(track="racecraft_oval",
+                                                     action_space=CONTINUOUS)},
+                LockstepExperience),
+        "lidar": ({"spec": lidar}, LockstepExperience),
+    }  # fmt: skip
+    for name, (overrides, kind) in cases.items():
+        config = _config(redis_url, settings.REDIS_PREFIX, **overrides)
+        source = config.rollouts.experience(experience_request(config))
+        try:
+            assert type(source) is kind, name
+        finally:
+            source.close()

@@ -8,11 +8,11 @@ import uuid
 
 import numpy as np
 import pytest
-import redis
 
 from tests.conftest import REDIS_PREFIX
 from tests.training.sandbox.sandbox_support import host_intact, real_params
-from training.rollout.remote import RemoteSlot, _push
+from training.rollout.streamed import StreamedExperience
+from training.rollout.streams import Session, StreamError
 from training.rollout.vecenv import RolloutError, _WorkerVecEnv
 from training.sandbox import SandboxLimits, evaluate_reward
 from training.sandbox.protocol import decode, encode
@@ -145,20 +145,27 @@ def test_forged_reset_replies_are_malformed_data(reply: object) -> None:
 
 
 @pytest.mark.parametrize(
-    "message",
-    [{"kind": "surprise"}, {"kind": "error", "message": {"x": 1}}, [1], "ready"],
-    ids=["unknown_kind", "error_not_text", "list", "text"],
+    "body",
+    [b"garbage", encode([1])[4:], encode({"kind": 3})[4:], encode({"x": 1})[4:]],
+    ids=["bytes", "list", "kind_not_text", "no_kind"],
 )
-def test_forged_remote_replies_are_malformed_data(message: object, redis_url: str) -> None:
-    client = redis.Redis.from_url(redis_url)
+def test_forged_stream_messages_are_a_clear_error(body: bytes, redis_url: str) -> None:
+    """What reaches the trainer's experience stream is decoded checked: a forged message ends
+    the run with a clear error, never an exception of the decoder."""
+    session = Session(redis_url, REDIS_PREFIX, uuid.uuid4().hex)
+    session.create()
     try:
-        slot = RemoteSlot(client, REDIS_PREFIX, uuid.uuid4().hex, 0)
-        _push(client, slot.reply_key, message)
-        with pytest.raises(RolloutError, match="sent malformed data"):
-            slot.recv(5)
+        session.r.xadd(session.keys.exp, {"m": body})
+        [(_entry, msg)] = list(session.read("trainer", block_ms=1000))
+        assert isinstance(msg, StreamError)
+        with pytest.raises(RolloutError, match="stream message"):
+            StreamedExperience._take(None, msg, 0, 4)  # type: ignore[arg-type]
+        forged_error = {"kind": "error", "message": {"x": 1}}
+        with pytest.raises(RolloutError, match="x"):
+            StreamedExperience._take(None, forged_error, 0, 4)  # type: ignore[arg-type]
     finally:
-        client.delete(slot.reply_key)
-        client.close()
+        session.cleanup()
+        session.close()
 
 
 def test_a_trace_row_may_carry_a_continuous_action_pair_and_nothing_deeper() -> None:

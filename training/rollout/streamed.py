@@ -1,15 +1,16 @@
-"""The trainer's side of streamed training (issue 14): PPO fed by simulation workers that own
-their episodes (:mod:`training.rl.simulation`), through Redis streams
+"""Streamed experience (issue 14): PPO fed by simulation workers that own their episodes
+(:mod:`training.rl.simulation`), here or on other machines, through Redis streams
 (:mod:`training.rollout.streams`).
 
-One iteration: the trainer publishes policy version v with ``num_episodes_between_training``
-episode tickets and ``eval_episodes`` evaluation tickets; workers drive the training episodes
-with v and stream them back; once the quota is in, the trainer builds PPO's rollout buffer from
-those episodes (GAE here, with the values the workers computed and, for an episode cut by the
-time limit, the bootstrap value of its last observation), updates, and publishes v + 1. Workers
-that find no training ticket left run v's evaluation laps meanwhile, so evaluation overlaps the
-update and the trainer never waits for one: iteration i's metrics row (checkpoint v_i and its
-evaluation) goes to the hooks when v_i's laps are in, usually during the next rollout.
+One iteration: the trainer publishes policy version v with ``episodes_per_update`` episode
+tickets and ``eval_episodes`` evaluation tickets; workers drive the training episodes with v and
+stream them back; once the quota is in, :meth:`StreamedExperience.gather` builds PPO's rollout
+buffer from those episodes (GAE here, with the values the workers computed and, for an episode
+cut by the time limit, the bootstrap value of its last observation); the loop updates and
+:meth:`StreamedExperience.evaluate` publishes v + 1. Workers that find no training ticket left
+run v's evaluation laps meanwhile, so evaluation overlaps the update and the trainer never
+waits for one: iteration i's evaluation goes back to the loop when v_i's laps are in, usually
+during the next rollout.
 
 Only experience of the current version is learnt from, so PPO stays exactly on-policy (its
 log-probabilities and values are the current policy's). DeepRacer instead lets the rollout of
@@ -26,38 +27,36 @@ workers end when its heartbeat stops, and the job resumes from the checkpoint wi
 
 from __future__ import annotations
 
-import dataclasses
-import io
 import logging
 import threading
 import time
 import uuid
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.buffers import RolloutBuffer
-from stable_baselines3.common.logger import Logger
-from stable_baselines3.common.vec_env import DummyVecEnv
+from stable_baselines3.common.vec_env import VecEnv
 
-from training.rl.algorithms import build_model, load_model, set_torch_threads
-from training.rl.runner import (
+from training.rollout.experience import (
     EvaluationOutcome,
-    IterationResult,
-    TrainingConfig,
-    TrainingHooks,
-    TrainingSummary,
-    evaluation_spec,
+    Experience,
+    ExperienceRequest,
+    Hooks,
+    Learner,
 )
-from training.rl.runner import train as train_lockstep
-from training.rl.simulation import launch_local
-from training.rollout.streams import ALIVE_TTL_S, Chunk, Session, StreamError, read_chunk
+from training.rollout.streams import Chunk, Session, StreamError, read_chunk
 from training.rollout.vecenv import RolloutError
 from training.sandbox import RewardFunctionError
 from training.sandbox.errors import RewardError
 
 log = logging.getLogger(__name__)
+LaunchWorker = Callable[..., object]
+"""Starts one simulation worker (:func:`training.rl.simulation.serve_simulation`) with the given
+keyword arguments: a local process (its ``poll``, ``kill`` and ``wait`` are used) or a task on
+the ``simulation`` queue of another machine."""
 START_TIMEOUT_S = 120.0
 """No simulation worker alive this long after the start: a clear error."""
 MAX_RESTARTS = 3
@@ -79,13 +78,10 @@ class _Slot:
 
 
 @dataclass
-class _PendingRow:
-    """An iteration whose evaluation laps are still being driven."""
+class _Pending:
+    """A version whose evaluation laps are still being driven."""
 
     version: int
-    result: IterationResult
-    checkpoint: bytes
-    rows: list[list]
     expected: int
     laps: dict[str, dict] = field(default_factory=dict)
 
@@ -151,85 +147,97 @@ def worker_count(workers: int, spec) -> int:
     return max(1, int(workers), len(spec.track_list()))
 
 
-def streamed(config: TrainingConfig) -> bool:
-    """Whether ``config`` trains with simulation workers that own their episodes: PPO on a
-    user's reward with a :class:`~training.rollout.backends.StreamRollouts` backend. SAC learns
-    as it drives, and a trusted in-process reward cannot travel: both step envs in lockstep."""
-    return (
-        bool(getattr(config.rollouts, "streamed", False))
-        and config.algorithm == "clipped_ppo"
-        and config.reward_source is not None
-    )
+class StreamedExperience:
+    """An :class:`~training.rollout.experience.ExperienceSource` of simulation workers (see the
+    module's docstring). ``env`` is a local env for the spaces only: it is never stepped."""
 
-
-def train(config: TrainingConfig, hooks: TrainingHooks | None = None) -> TrainingSummary:
-    """Train until ``config.max_minutes`` pass or ``hooks.should_stop()`` says so: streamed
-    when :func:`streamed` says so, else in lockstep (:func:`training.rl.runner.train`)."""
-    if streamed(config):
-        return StreamedTrainingLoop(config, hooks).run()
-    return train_lockstep(config, hooks)
-
-
-class StreamedTrainingLoop:
-    """Runs iterations until the time limit or a stop request (see the module's docstring)."""
-
-    def __init__(self, config: TrainingConfig, hooks: TrainingHooks | None = None) -> None:
-        self.config = config
-        self.hooks = hooks or TrainingHooks()
-        self.backend = config.rollouts
+    def __init__(self, request: ExperienceRequest, env: VecEnv, *, redis_url: str,
+                 workers: int, launch: LaunchWorker, prefix: str = "") -> None:  # fmt: skip
+        if not isinstance(env.observation_space, spaces.Box):
+            raise RolloutError("streamed training needs a camera-only observation")
+        self.request, self.env = request, env
+        self.redis_url, self.prefix, self.launch = redis_url, prefix, launch
+        self.obs_shape = tuple(env.observation_space.shape)
+        act = env.action_space
+        self.action_dim = 0 if isinstance(act, spaces.Discrete) else int(np.prod(act.shape))
         self.started = time.monotonic()
-        self.deadline = self.started + config.max_minutes * 60
-        self._stop: str | None = None
         self.episodes_total = 0
         self.deaths = 0
         self.requeued = 0
-        set_torch_threads(config.torch_threads)
-        # The spaces come from a local env (never from a worker); it is never stepped.
-        self._spaces = DummyVecEnv([lambda: config.spec.make(None)])
-        hp = config.hyperparameters
-        if config.initial_checkpoint is not None:
-            self.model = load_model(config.algorithm, config.initial_checkpoint, self._spaces, hp,
-                                    network=config.network, seed=config.seed)  # fmt: skip
-        else:
-            self.model = build_model(config.algorithm, self._spaces, hp, network=config.network,
-                                     seed=config.seed)  # fmt: skip
-        self.model.set_logger(Logger(folder=None, output_formats=[]))
-        obs_space = self._spaces.observation_space
-        if not isinstance(obs_space, spaces.Box):
-            raise RolloutError("streamed training needs a camera-only observation")
-        self.obs_shape = tuple(obs_space.shape)
-        act = self.model.action_space
-        self.action_dim = 0 if isinstance(act, spaces.Discrete) else int(np.prod(act.shape))
-        self.session = Session(self.backend.redis_url, self.backend.prefix, uuid.uuid4().hex)
+        self.session = Session(redis_url, prefix, uuid.uuid4().hex)
         self.session.create()
         self.session.r.set(self.session.keys.trainer, 1, ex=30)
-        self.slots = [_Slot(i) for i in range(worker_count(self.backend.workers, config.spec))]
-        self.pending: deque[_PendingRow] = deque()
+        self.slots = [_Slot(i) for i in range(worker_count(workers, request.spec))]
+        self.pending: deque[_Pending] = deque()
         self.counted: dict[str, list[Chunk]] = {}
         self.counted_tickets: list[str] = []  # every episode counted, by ticket, in order
         self._partial: dict[str, list[Chunk]] = {}
+        self._rows: list[list] = []
+        self._episodes: list[tuple[float, float]] = []
         self._checked = 0.0
+        self._hooks: Hooks | None = None
+        self._learner: Learner | None = None
         self._relay_stop = threading.Event()
         self._relay = threading.Thread(target=self._relay_frames, name="frames", daemon=True)
 
+    # ---------------------------------------------------------------- the protocol
+    def start(self, learner: Learner) -> None:
+        self._hooks, self._learner = learner.hooks, learner
+        self._publish(learner, 0)
+        for slot in self.slots:
+            self._launch(slot)
+        self._relay.start()
+
+    def gather(self, learner: Learner) -> Experience | None:
+        """The quota of episodes of the current version, in the order they finished, in the
+        model's rollout buffer; None if stopped."""
+        version, quota = learner.iteration, self.request.episodes_per_update
+        t0 = time.monotonic()
+        self.counted, self._partial, self._rows, self._episodes = {}, {}, [], []
+        while len(self.counted) < quota:
+            if learner.stop_reason():
+                return None
+            for entry_id, msg in self.session.read("trainer", block_ms=200):
+                self.session.ack(entry_id)
+                self._take(msg, version, quota)
+            self._hand_back(learner)
+            self.check_workers(version)  # after the stream: a worker's last words come first
+        model = learner.model
+        model.rollout_buffer = rollout_buffer(model, list(self.counted.values()))
+        steps = model.rollout_buffer.buffer_size
+        model.num_timesteps += steps
+        return Experience(steps=steps, episodes=self._episodes, rows=self._rows,
+                          rollout_s=time.monotonic() - t0)  # fmt: skip
+
+    def evaluate(self, learner: Learner, iteration: int) -> None:
+        """Publish the new version with its evaluation laps; the last one's unclaimed laps are
+        withdrawn."""
+        self._publish(learner, iteration)
+        dropped = self.session.withdraw(iteration - 1)
+        for row in self.pending:
+            if row.version == iteration - 1:
+                row.expected -= dropped
+        self.pending.append(_Pending(iteration, expected=self.request.eval_episodes))
+        self._hand_back(learner)
+
+    def finish(self, learner: Learner) -> None:
+        self._hand_back(learner, final=True)
+
     # ---------------------------------------------------------------- workers
     def _launch(self, slot: _Slot) -> None:
-        cfg = self.config
+        req = self.request
         slot.worker = f"w{slot.index}-{uuid.uuid4().hex[:8]}"
         slot.seen_alive, slot.launched_at = False, time.monotonic()
-        kwargs = {
-            "redis_url": self.backend.redis_url, "prefix": self.backend.prefix,
-            "session": self.session.keys.session, "worker": slot.worker,
+        slot.process = self.launch(
+            redis_url=self.redis_url, prefix=self.prefix, session=self.session.keys.session,
+            worker=slot.worker,
             # Multi-track: each worker its own track, as DeepRacer-for-Cloud's workers.
-            "spec": cfg.spec.for_env(slot.index).to_json(),
-            "eval_spec": evaluation_spec(cfg).for_env(slot.index).to_json(),
-            "reward_source": cfg.reward_source, "algorithm": cfg.algorithm,
-            "network": cfg.network,
-            "hyperparameters": dataclasses.asdict(cfg.hyperparameters),
-            "seed": cfg.seed + 1000 * (slot.index + 1) + 100_000 * slot.restarts,
-        }  # fmt: skip
-        launch = self.backend.launch or launch_local
-        slot.process = launch(**kwargs)
+            spec=req.spec.for_env(slot.index).to_json(),
+            eval_spec=req.eval_spec.for_env(slot.index).to_json(),
+            reward_source=req.reward_source, algorithm=req.algorithm, network=req.network,
+            hyperparameters=dict(req.hyperparameters),
+            seed=req.seed + 1000 * (slot.index + 1) + 100_000 * slot.restarts,
+        )  # fmt: skip
 
     def _exited(self, slot: _Slot) -> bool:
         poll = getattr(slot.process, "poll", None)
@@ -284,13 +292,14 @@ class StreamedTrainingLoop:
     def _relay_frames(self) -> None:
         """Live frames from the watched worker to the hooks, and the trainer's heartbeat, on a
         thread of its own: video goes on while the trainer updates."""
-        s = Session(self.backend.redis_url, self.backend.prefix, self.session.keys.session)
+        s = Session(self.redis_url, self.prefix, self.session.keys.session)
         last_id, beat = b"$", 0.0
+        hooks = self._hooks
         try:
             while not self._relay_stop.is_set():
                 try:
                     now = time.monotonic()
-                    watched = self.hooks.frames_wanted()
+                    watched = hooks is not None and hooks.frames_wanted()
                     if now - beat >= 1.0:
                         beat = now
                         s.r.set(s.keys.trainer, 1, ex=30)
@@ -299,7 +308,7 @@ class StreamedTrainingLoop:
                         last_id = entry_id
                         frame = _frame(msg)
                         if watched and frame is not None:
-                            self.hooks.on_frame(frame)
+                            hooks.on_frame(frame)
                 except Exception:  # noqa: BLE001 - video is best effort; the beat goes on
                     log.warning("the frame relay failed; retrying", exc_info=True)
                     self._relay_stop.wait(1.0)
@@ -313,27 +322,6 @@ class StreamedTrainingLoop:
         return None
 
     # ---------------------------------------------------------------- the streams
-    def stop_reason(self) -> str | None:
-        if self._stop is None:
-            if time.monotonic() >= self.deadline:
-                self._stop = "time_limit"
-            elif self.hooks.should_stop():
-                self._stop = "user"
-        return self._stop
-
-    def collect(self, version: int, quota: int) -> list[list[Chunk]] | None:
-        """The ``quota`` episodes of ``version``, in the order they finished; None if stopped."""
-        self.counted, self._partial = {}, {}
-        while len(self.counted) < quota:
-            if self.stop_reason():
-                return None
-            for entry_id, msg in self.session.read("trainer", block_ms=200):
-                self.session.ack(entry_id)
-                self._take(msg, version, quota)
-            self._emit_ready()
-            self.check_workers(version)  # after the stream: a worker's last words come first
-        return list(self.counted.values())
-
     def _take(self, msg: dict | StreamError, version: int, quota: int) -> None:
         if isinstance(msg, StreamError):
             raise RolloutError(str(msg))
@@ -367,10 +355,11 @@ class StreamedTrainingLoop:
                     self._rows.append(trace)
                 entry = info.get("episode_entry")
                 if isinstance(entry, dict):
-                    self._episode_stats.append(
+                    self._episodes.append(
                         (float(entry.get("total_reward", 0.0)), float(entry.get("progress", 0.0)))
                     )
-                    self.hooks.on_episode(entry)
+                    if self._hooks is not None:
+                        self._hooks.on_episode(entry)
 
     def _take_lap(self, msg: dict) -> None:
         for row in self.pending:
@@ -380,109 +369,25 @@ class StreamedTrainingLoop:
                     row.laps[ticket] = msg
                 return
 
-    def _emit_ready(self, final: bool = False) -> None:
+    def _hand_back(self, learner: Learner, final: bool = False) -> None:
+        """Evaluations whose laps are all in (all of them when ``final``), in order."""
         while self.pending and (final or self.pending[0].complete()):
-            self._emit(self.pending.popleft())
+            row = self.pending.popleft()
+            laps = sorted(row.laps.values(), key=lambda m: str(m.get("ticket")))
+            outcome = EvaluationOutcome(
+                progress=[_num(m.get("progress")) for m in laps],
+                statuses=[str(m.get("status", ""))[:32] for m in laps],
+                lap_times=[[_num(t) for t in m.get("lap_times", [])][:100] for m in laps],
+                rewards=[_num(m.get("reward")) for m in laps],
+            )
+            learner.evaluated(row.version, outcome, sum(_num(m.get("wall_s")) for m in laps))
 
-    def _emit(self, row: _PendingRow) -> None:
-        laps = sorted(row.laps.values(), key=lambda m: str(m.get("ticket")))
-        outcome = EvaluationOutcome(
-            progress=[_num(m.get("progress")) for m in laps],
-            statuses=[str(m.get("status", ""))[:32] for m in laps],
-            lap_times=[[_num(t) for t in m.get("lap_times", [])][:100] for m in laps],
-            rewards=[_num(m.get("reward")) for m in laps],
-        )
-        result = row.result
-        result.evaluation = outcome
-        result.eval_s = sum(_num(m.get("wall_s")) for m in laps)
-        result.elapsed_s = time.monotonic() - self.started
-        if outcome.mean_progress > self.best_progress:
-            self.best_progress, self.best_iteration = outcome.mean_progress, result.iteration
-            result.best = True
-        self.emitted += 1
-        self.hooks.on_iteration(result, row.checkpoint, row.rows)
-
-    # ---------------------------------------------------------------- the update
-    def update(self, episodes: list[list[Chunk]]) -> int:
-        model = self.model
-        model.rollout_buffer = rollout_buffer(model, episodes)
-        steps = model.rollout_buffer.buffer_size
-        model.num_timesteps += steps
-        model.train()
-        return steps
-
-    def weights(self) -> dict[str, np.ndarray]:
-        return {k: v.detach().cpu().numpy() for k, v in self.model.policy.state_dict().items()}
-
-    def _publish(self, version: int) -> None:
-        n = self.config.eval_episodes
-        if self.config.eval_laps > 1 or self.config.eval_from_start_line:
-            evals = [{"start_progress": -1.0} for _ in range(n)]
-        else:
-            evals = [{"start_progress": 100.0 * i / n} for i in range(n)]
-        quota = self.config.hyperparameters.num_episodes_between_training
-        self.session.publish_policy(version, self.weights(), episodes=quota,
+    def _publish(self, learner: Learner, version: int) -> None:
+        state = learner.model.policy.state_dict()
+        weights = {k: v.detach().cpu().numpy() for k, v in state.items()}
+        evals = [{"start_progress": p} for p in self.request.eval_starts()]
+        self.session.publish_policy(version, weights, episodes=self.request.episodes_per_update,
                                     evals=evals if version > 0 else [])  # fmt: skip
-
-    def checkpoint(self) -> bytes:
-        buffer = io.BytesIO()
-        self.model.save(buffer)
-        return buffer.getvalue()
-
-    def run(self) -> TrainingSummary:
-        self.best_progress, self.best_iteration = -1.0, None
-        if self.config.best_score is not None:
-            self.best_progress = float(self.config.best_score)
-        self.emitted = 0
-        quota = self.config.hyperparameters.num_episodes_between_training
-        version, iteration = 0, 0
-        try:
-            self._publish(0)
-            for slot in self.slots:
-                self._launch(slot)
-            self._relay.start()
-            while not self.stop_reason():
-                t0 = time.monotonic()
-                self._rows, self._episode_stats = [], []
-                episodes = self.collect(version, quota)
-                if episodes is None:
-                    break  # an interrupted rollout is not learnt from
-                rows, stats = self._rows, self._episode_stats
-                t1 = time.monotonic()
-                steps = self.update(episodes)
-                version += 1
-                iteration += 1
-                self._publish(version)
-                dropped = self.session.withdraw(version - 1)
-                t2 = time.monotonic()
-                rewards = [r for r, _ in stats]
-                progress = [p for _, p in stats]
-                result = IterationResult(
-                    iteration=iteration, episodes=len(episodes), steps=steps,
-                    total_steps=self.model.num_timesteps,
-                    train_reward=float(np.mean(rewards)) if rewards else 0.0,
-                    train_progress=float(np.mean(progress)) if progress else 0.0,
-                    evaluation=EvaluationOutcome([], [], [], []), elapsed_s=0.0,
-                    rollout_s=t1 - t0, update_s=t2 - t1, eval_s=0.0,
-                )  # fmt: skip
-                # v's laps were published with it; those not started are withdrawn now.
-                for row in self.pending:
-                    if row.version == version - 1:
-                        row.expected -= dropped
-                self.pending.append(_PendingRow(version, result, self.checkpoint(), rows,
-                                                expected=self.config.eval_episodes))  # fmt: skip
-                self._emit_ready()
-            self._emit_ready(final=True)
-        finally:
-            self.close()
-        return TrainingSummary(
-            iterations=self.emitted,
-            total_steps=self.model.num_timesteps,
-            best_iteration=self.best_iteration,
-            best_eval_progress=max(self.best_progress, 0.0),
-            stopped_by=self._stop or "finished",
-            elapsed_s=time.monotonic() - self.started,
-        )
 
     def close(self) -> None:
         try:
@@ -499,7 +404,7 @@ class StreamedTrainingLoop:
                 except Exception:  # noqa: BLE001 - a worker that does not end is killed
                     _kill(slot.process)
         try:
-            self._spaces.close()
+            self.env.close()
         except Exception:  # noqa: BLE001
             pass
         try:
@@ -546,13 +451,3 @@ def _frame(msg: dict) -> dict | None:
     out["lap"], out["iteration"], out["version"] = (int(out[k]) for k in
                                                     ("lap", "iteration", "version"))  # fmt: skip
     return out
-
-
-__all__ = [
-    "ALIVE_TTL_S",
-    "StreamedTrainingLoop",
-    "episode_advantages",
-    "rollout_buffer",
-    "train",
-    "worker_count",
-]

@@ -1,0 +1,263 @@
+"""Experience in lockstep: the trainer steps vectorised envs (the sandboxed worker processes of
+this machine, or its own process for a trusted reward), as DeepRacer's rollout workers did
+with the trainer waiting; then the loop updates; then one deterministic episode per env of an
+evaluation env of its own measures the new policy.
+
+PPO's rollout is stable-baselines3's own ``collect_rollouts`` into the model's rollout buffer,
+sized before each update so that about ``episodes_per_update`` episodes fit in it; the loop's
+update is SB3's ``train``, so an iteration is exactly what SB3's ``learn`` does. SAC learns as
+it drives (an update after every step): it drives on in chunks of SB3's ``learn`` until that
+many more episodes have finished.
+
+While the policy updates, and while an iteration is stored, a :class:`Spectator` keeps the live
+view going when someone watches.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import threading
+import time
+
+import numpy as np
+import torch
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv
+
+from training.rollout.envs import FRAME_INTERVAL_S
+from training.rollout.experience import (
+    EvaluationOutcome,
+    Experience,
+    ExperienceRequest,
+    Learner,
+)
+
+log = logging.getLogger(__name__)
+
+INITIAL_EPISODE_STEPS = 40.0
+"""Guess of an early episode's length (steps) before any has finished."""
+MAX_SAC_CHUNKS = 200
+"""An SAC iteration ends after this many chunks even if fewer episodes finished."""
+MIN_ROLLOUT_STEPS = 16
+MAX_ROLLOUT_STEPS = 2048
+
+
+def plan_rollout_steps(episodes: int, mean_episode_steps: float, num_envs: int) -> int:
+    """Steps per env so that about ``episodes`` episodes finish before the next update."""
+    steps = math.ceil(episodes * max(mean_episode_steps, 1.0) / num_envs)
+    return int(min(MAX_ROLLOUT_STEPS, max(MIN_ROLLOUT_STEPS, steps)))
+
+
+class _StepWatcher(BaseCallback):
+    """Collects what the envs report each step and stops the rollout when asked to."""
+
+    def __init__(self, source: LockstepExperience, learner: Learner) -> None:
+        super().__init__()
+        self.source, self.learner = source, learner
+
+    def _on_step(self) -> bool:
+        source, learner = self.source, self.learner
+        for info in self.locals.get("infos", ()):
+            source.collect(info, learner)
+        wanted = learner.hooks.frames_wanted()
+        if wanted != source.venv.want_frames:
+            source.venv.want_frames = wanted
+        return not learner.stop_reason()
+
+    def _on_rollout_start(self) -> None:
+        self.source.spectator.stop()
+
+    def _on_rollout_end(self) -> None:
+        self.source.spectator.start(self.learner, self.learner.iteration + 1)
+
+
+class Spectator:
+    """Keeps the live view going while the policy updates: drives the evaluation env with a
+    frozen copy of the policy that drove the rollout, at the view's pace (15 steps a second of
+    real time), from the rollout's end until the evaluation; and with the evaluated policy from
+    the evaluation's end while the iteration is stored, until the next rollout. Only for PPO
+    (SAC has no long pause to fill) and only when someone watches. Its laps are for the eyes:
+    nothing is scored or logged, and an error in one only ends it."""
+
+    def __init__(self, env: VecEnv, *, enabled: bool) -> None:
+        self.env = env
+        self.enabled = enabled
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    def start(self, learner: Learner, iteration: int) -> None:
+        """Drive with the policy as it is now, labelled ``iteration`` (the one it belongs to)."""
+        if self._thread is not None or not self.enabled or not learner.hooks.frames_wanted():
+            return
+        policy = copy.deepcopy(learner.model.policy)  # the update changes the trainer's in place
+        policy.set_training_mode(False)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._drive, args=(policy, learner.hooks, iteration),
+                                        name="spectator", daemon=True)  # fmt: skip
+        self._thread.start()
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join()
+            self._thread = None
+
+    def _drive(self, policy, hooks, iteration: int) -> None:
+        venv, stop = self.env, self._stop
+        try:
+            venv.want_frames = True
+            obs = venv.reset()
+            due = time.monotonic()
+            while not stop.is_set():
+                with torch.no_grad():
+                    actions, _ = policy.predict(obs, deterministic=True)
+                obs, _rewards, _dones, infos = venv.step(actions)  # ends reset by themselves
+                frame = infos[0].pop("frame", None)
+                if frame is not None:
+                    hooks.on_frame({**frame, "phase": "evaluation", "iteration": iteration,
+                                    "spare": True})  # fmt: skip
+                due += FRAME_INTERVAL_S
+                stop.wait(max(0.0, due - time.monotonic()))
+        except Exception:  # noqa: BLE001 - the video is never worth the training
+            log.warning("the live view's lap during the update stopped", exc_info=True)
+
+
+class LockstepExperience:
+    """An :class:`~training.rollout.experience.ExperienceSource` stepping ``venv`` (training)
+    and ``eval_venv`` (one deterministic episode per env after each update) from the trainer."""
+
+    def __init__(self, request: ExperienceRequest, venv: VecEnv, eval_venv: VecEnv) -> None:
+        self.request = request
+        self.venv = self.env = venv
+        self.eval_venv = eval_venv
+        self.venv.seed(request.seed)
+        self.spectator = Spectator(eval_venv, enabled=request.on_policy)
+        self.episode_steps: list[int] = []
+        self.longest_seen = 0  # steps of the longest episode seen so far, finished or not
+        self._episodes: list[tuple[float, float]] = []
+        self._rows: list[list] = []
+
+    # ------------------------------------------------------------------ step bookkeeping
+    def collect(self, info: dict, learner: Learner) -> None:
+        trace = info.get("trace")
+        if trace is not None:
+            self._rows.append(trace)
+            if isinstance(trace[1], int) and trace[1] > self.longest_seen:
+                self.longest_seen = trace[1]
+        frame = info.get("frame")
+        if frame is not None:
+            learner.hooks.on_frame({**frame, "phase": "training",
+                                    "iteration": learner.iteration + 1})  # fmt: skip
+        entry = info.get("episode_entry")
+        if entry is not None:
+            self.episode_steps.append(int(entry.get("steps", 0)))
+            self._episodes.append(
+                (float(entry.get("total_reward", 0.0)), float(entry.get("progress", 0.0)))
+            )
+            learner.hooks.on_episode(entry)
+
+    # ------------------------------------------------------------------ the protocol
+    def start(self, learner: Learner) -> None:
+        """Nothing runs ahead of the first rollout in lockstep."""
+
+    def gather(self, learner: Learner) -> Experience | None:
+        self._episodes, self._rows = [], []
+        model = learner.model
+        t0 = time.monotonic()
+        before = model.num_timesteps
+        if self.request.on_policy:
+            complete, learned_s = self._collect_rollout(learner), None
+        else:
+            complete, learned_s = self._drive_and_learn(learner), 0.0
+        if not complete:
+            return None  # an interrupted rollout is not learnt from
+        return Experience(
+            steps=model.num_timesteps - before,
+            episodes=self._episodes,
+            rows=self._rows,
+            rollout_s=time.monotonic() - t0,
+            learned_s=learned_s,
+        )
+
+    def _collect_rollout(self, learner: Learner) -> bool:
+        """PPO: one rollout into the model's buffer, as SB3's ``learn`` collects it."""
+        model = learner.model
+        recent = self.episode_steps[-50:]
+        guess = max(INITIAL_EPISODE_STEPS, float(self.longest_seen))
+        mean_len = float(np.mean(recent)) if recent else guess
+        n_steps = plan_rollout_steps(self.request.episodes_per_update, mean_len, model.n_envs)
+        model.set_rollout_steps(n_steps)
+        total, callback = model._setup_learn(
+            n_steps * model.n_envs, _StepWatcher(self, learner), reset_num_timesteps=False
+        )
+        callback.on_training_start(locals(), globals())
+        complete = model.collect_rollouts(model.env, callback, model.rollout_buffer,
+                                          n_rollout_steps=n_steps)  # fmt: skip
+        callback.on_training_end()
+        if complete:
+            model._update_current_progress_remaining(model.num_timesteps, total)
+        return bool(complete) and not learner.stop_reason()
+
+    def _drive_and_learn(self, learner: Learner) -> bool:
+        """SAC: drive on in chunks (learning after every step) until enough episodes end; its
+        updates are counted in the rollout's time."""
+        model = learner.model
+        target = len(self.episode_steps) + self.request.episodes_per_update
+        chunk = max(64, 16 * model.n_envs)
+        for _ in range(MAX_SAC_CHUNKS):
+            model.learn(total_timesteps=chunk, reset_num_timesteps=False,
+                        callback=_StepWatcher(self, learner), progress_bar=False)  # fmt: skip
+            if len(self.episode_steps) >= target or learner.stop_reason():
+                break
+        return not learner.stop_reason()
+
+    def evaluate(self, learner: Learner, iteration: int) -> None:
+        """One deterministic episode per eval env, now; the outcome goes straight back."""
+        self.spectator.stop()
+        t0 = time.monotonic()
+        outcome = self._evaluate(learner, iteration)
+        wall_s = time.monotonic() - t0
+        self.spectator.start(learner, iteration)  # while the iteration is stored and logged
+        learner.evaluated(iteration, outcome, wall_s)
+
+    def _evaluate(self, learner: Learner, iteration: int) -> EvaluationOutcome:
+        venv, hooks = self.eval_venv, learner.hooks
+        n = venv.num_envs
+        if self.request.spread_eval_starts:
+            venv.set_options([{"start_progress": p} for p in self.request.eval_starts()])
+        obs = venv.reset()
+        done = np.zeros(n, dtype=bool)
+        outcome = EvaluationOutcome([0.0] * n, [""] * n, [[] for _ in range(n)], [0.0] * n)
+        while not done.all():
+            # The live view shows the evaluation lap too: a gap only while the policy updates.
+            venv.want_frames = hooks.frames_wanted()
+            actions, _ = learner.model.predict(obs, deterministic=True)
+            obs, rewards, dones, infos = venv.step(actions)
+            # The first car's frames (it drives on after its episode while the others finish).
+            frame = infos[0].pop("frame", None)
+            if frame is not None:
+                hooks.on_frame({**frame, "phase": "evaluation", "iteration": iteration})
+            for i in np.flatnonzero(~done):
+                outcome.rewards[i] += float(rewards[i])
+                info = infos[i]
+                if dones[i]:
+                    done[i] = True
+                    outcome.progress[i] = float(info["progress"])
+                    outcome.statuses[i] = str(info["status"])
+                    outcome.lap_times[i] = list(info.get("lap_times", []))
+            if learner.stop_reason():
+                break
+        return outcome
+
+    def finish(self, learner: Learner) -> None:
+        """Every evaluation was handed back as it ran."""
+
+    def close(self) -> None:
+        self.spectator.stop()
+        for venv in (self.venv, self.eval_venv):
+            try:
+                venv.close()
+            except Exception:  # noqa: BLE001 - closing must not hide the real error
+                pass
