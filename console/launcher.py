@@ -317,7 +317,7 @@ class ConsoleOptions:
     ``evaluation_concurrency`` evaluation ones, ``quick_concurrency`` for the reaper and the
     league (queue ``default``), ``interactive_concurrency`` for what users' pages wait for
     (validations, replays, imports, car exports: queue ``interactive``, so a burst of them
-    never delays the reaper), and ``simulation_slots`` remote-rollout ones (none when 0).
+    never delays the reaper), and ``simulation_slots`` simulation workers (none when 0).
     ``redis_url``
     None means the embedded Redis with its socket at ``embedded_socket``."""
 

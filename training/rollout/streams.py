@@ -22,7 +22,7 @@ The trainer and its simulation workers share one *session* in Redis (all keys un
 - ``stop``: the trainer is done; workers end.
 
 This module is transport only (no torch, no policy): the workers themselves are
-:mod:`training.rl.simulation`, the trainer's side is :mod:`training.rl.runner`.
+:mod:`training.rl.simulation`, the trainer's side is :mod:`training.rollout.streamed`.
 """
 
 from __future__ import annotations

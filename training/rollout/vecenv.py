@@ -29,8 +29,6 @@ ROLLOUT_LIMITS = SandboxLimits(
 )
 """A rollout worker: a second per reward call, 3 GiB more than its imports, a day of CPU."""
 
-STEP_TIMEOUT_S = 60.0
-"""The trainer's wait for a remote worker's reply through Redis (network and queueing)."""
 STEP_SLACK_S = 5.0
 """What a step of a worker's envs may take beyond its reward calls (physics, cameras)."""
 RESET_SLACK_S = 30.0
