@@ -25,6 +25,15 @@ STANDARD = "DEEP_CONVOLUTIONAL_NETWORK"
 DEEP = "DEEP_CONVOLUTIONAL_NETWORK_DEEP"
 AWS_SHALLOW = "AWS_DEEPRACER_3_LAYER_CNN"
 AWS_STANDARD = "AWS_DEEPRACER_5_LAYER_CNN"
+TINY = "RACECRAFT_TINY_TEST_CNN"
+"""A network for the test suite only: 8×8 pooling (20×15), one convolution of 4 filters and a
+16-unit dense layer, about 4 000 weights, where a test's subject is not the network itself.
+It is never offered to users: it is not in :data:`NETWORKS` (what ``model_metadata.json``
+accepts, so no form, import or model row can name it), :data:`NETWORK_LABELS` (the form's
+choices) or :data:`SPECS` (what imported DeepRacer graphs and checkpoints are matched
+against); only the builders here (:func:`policy_kwargs`, :func:`sac_policy_kwargs`, the
+extractors, hence ``TrainingConfig(network=TINY)`` and ``build_model(..., network=TINY)``)
+know it."""
 NETWORKS = (LEAN, SHALLOW, STANDARD, DEEP, AWS_SHALLOW, AWS_STANDARD)
 NETWORK_LABELS = {
     LEAN: "Racecraft lean CNN (pooled 80×60, fastest on a CPU)",
@@ -41,6 +50,7 @@ DEEPRACER_NAMES = {
     DEEP: DEEP,
     AWS_SHALLOW: SHALLOW,
     AWS_STANDARD: STANDARD,
+    TINY: SHALLOW,  # never exported for a user; should a test export one, its metadata is valid
 }
 """The ``neural_network`` value DeepRacer's tools accept for each network (the car ignores it;
 DeepRacer-for-Cloud and the SimApp refuse names they do not know)."""
@@ -71,15 +81,28 @@ SPECS: dict[str, tuple[int, list[tuple[int, int, int]], int]] = {
 }
 SPECS[AWS_SHALLOW] = SPECS[SHALLOW]
 SPECS[AWS_STANDARD] = SPECS[STANDARD]
+TEST_SPECS: dict[str, tuple[int, list[tuple[int, int, int]], int]] = {
+    # (C, 120, 160) -> pooled (C, 15, 20) -> conv 3×3 stride 2: (4, 7, 9) = 252 -> 16 units
+    TINY: (8, [(4, 3, 2)], 16),
+}
+"""Networks for tests only (:data:`TINY`), kept out of :data:`SPECS` so that an uploaded
+graph of the same shapes is not taken for one."""
+
+
+def network_spec(network: str) -> tuple[int, list[tuple[int, int, int]], int]:
+    """``(pooling, [(filters, kernel, stride)], dense units)`` of a network name, the test-only
+    ones included; raises :class:`NetworkError` for an unknown name."""
+    spec = SPECS.get(network) or TEST_SPECS.get(network)
+    if spec is None:
+        raise NetworkError(f"unknown network {network!r}; choose from {NETWORKS}")
+    return spec
 
 
 class CameraExtractor(BaseFeaturesExtractor):
     """Convolutions over the camera image, then one dense layer."""
 
     def __init__(self, observation_space: gym.spaces.Box, network: str = LEAN) -> None:
-        if network not in SPECS:
-            raise NetworkError(f"unknown network {network!r}; choose from {NETWORKS}")
-        pool, spec, dense = SPECS[network]
+        pool, spec, dense = network_spec(network)
         super().__init__(observation_space, features_dim=dense)
         channels = observation_space.shape[0]
         self.cnn = _conv_stack(channels, spec, pool)
@@ -95,6 +118,8 @@ class CameraExtractor(BaseFeaturesExtractor):
 
 LIDAR_EMBEDDER_UNITS = (256, 256)
 """DeepRacer's LIDAR embedder: two dense layers (ReLU) over the LIDAR vector."""
+TEST_LIDAR_UNITS = {TINY: (16, 16)}
+"""The LIDAR embedder of the test-only networks (every other network has DeepRacer's)."""
 
 
 def split_sensors(space: gym.spaces.Dict) -> tuple[str, str]:
@@ -118,7 +143,7 @@ class CameraLidarExtractor(BaseFeaturesExtractor):
         camera = CameraExtractor(observation_space.spaces[camera_key], network)
         size = int(observation_space.spaces[lidar_key].shape[0])
         layers: list[nn.Module] = []
-        for units in LIDAR_EMBEDDER_UNITS:
+        for units in TEST_LIDAR_UNITS.get(network, LIDAR_EMBEDDER_UNITS):
             layers += [nn.Linear(size, units), nn.ReLU()]
             size = units
         super().__init__(observation_space, features_dim=camera.features_dim + size)
@@ -142,8 +167,7 @@ def policy_type(observation_space: gym.spaces.Space | None) -> str:
 def policy_kwargs(network: str = LEAN, observation_space: gym.spaces.Space | None = None) -> dict:
     """SB3 ``policy_kwargs`` for a network name (model_metadata.json's ``neural_network``) and
     the observation space (a ``Dict`` one adds the LIDAR embedder)."""
-    if network not in SPECS:
-        raise NetworkError(f"unknown network {network!r}; choose from {NETWORKS}")
+    network_spec(network)  # an unknown name raises NetworkError
     lidar = isinstance(observation_space, gym.spaces.Dict)
     return {
         "features_extractor_class": CameraLidarExtractor if lidar else CameraExtractor,

@@ -5,6 +5,8 @@ metadata, and evaluation with Dict observations and objects in the video."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from training.rl.hyperparams import parse_hyperparameters
 from training.rl.metadata import build_metadata
 from training.rl.policies import (
     LEAN,
+    TINY,
     CameraExtractor,
     CameraLidarExtractor,
     NetworkError,
@@ -78,7 +81,7 @@ def test_lidar_extractor_is_deepracers_embedder_next_to_the_camera():
         CameraLidarExtractor(gym.spaces.Dict({"LIDAR": space.spaces["LIDAR"]}), LEAN)
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # the sandboxed workers' start, not the (tiny) network, takes the time
 @pytest.mark.parametrize(
     "race, sensors, algorithm, actions",
     [
@@ -92,13 +95,15 @@ def test_lidar_extractor_is_deepracers_embedder_next_to_the_camera():
 def test_a_race_trains_in_sandboxed_workers_and_evaluates(race, sensors, algorithm, actions):
     """One iteration in sandboxed workers (the Dict observations cross the pipe), then the
     checkpoint loads for the model's metadata (nothing unpickled) and drives an evaluation
-    in the same race: the objects are on the track, in the video and in the metrics."""
+    in the same race: the objects are on the track, in the video and in the metrics. The
+    network is the test-only tiny one: the subject here is the sensors and the race."""
     spec = EnvSpec(track="racecraft_oval", action_space=actions, sensors=sensors, race=race)
     hooks = Collect(iterations=1)
     summary = train(
         TrainingConfig(
             spec=spec,
             algorithm=algorithm,
+            network=TINY,
             hyperparameters=parse_hyperparameters(
                 {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32},
                 algorithm,
@@ -113,7 +118,8 @@ def test_a_race_trains_in_sandboxed_workers_and_evaluates(race, sensors, algorit
     assert summary.iterations == 1 and hooks.results[0].steps > 0
     assert hooks.rows[0]  # the sim-trace of the iteration came back from the workers
     metadata = build_metadata(action_space=actions, training_algorithm=algorithm,
-                              sensor=list(sensors), neural_network=LEAN)  # fmt: skip
+                              sensor=list(sensors))  # fmt: skip
+    metadata = dataclasses.replace(metadata, neural_network=TINY)  # no user's metadata names it
     model = load_checkpoint(hooks.checkpoints[0], metadata)
     assert model.num_timesteps == hooks.results[0].total_steps
     report = evaluate(
