@@ -37,9 +37,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from gymnasium import spaces
-from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.vec_env import VecEnv
 
+from training.rollout.buffers import rollout_buffer
 from training.rollout.experience import (
     EvaluationOutcome,
     Experience,
@@ -47,7 +47,14 @@ from training.rollout.experience import (
     Hooks,
     Learner,
 )
-from training.rollout.streams import Chunk, Session, StreamError, read_chunk
+from training.rollout.streams import (
+    Chunk,
+    Session,
+    StreamError,
+    finite,
+    read_chunk,
+    read_frame,
+)
 from training.rollout.vecenv import RolloutError
 from training.sandbox import RewardFunctionError
 from training.sandbox.errors import RewardError
@@ -87,57 +94,6 @@ class _Pending:
 
     def complete(self) -> bool:
         return len(self.laps) >= self.expected
-
-
-def episode_advantages(rewards: np.ndarray, values: np.ndarray, *, terminated: bool,
-                       bootstrap: float, gamma: float, lam: float) -> np.ndarray:  # fmt: skip
-    """GAE(λ) advantages of one whole episode. A terminated episode's last step has no future;
-    one cut by the time limit bootstraps from the value of its last observation (as SB3 does)."""
-    n = len(rewards)
-    advantages = np.zeros(n, np.float32)
-    last = 0.0
-    for t in reversed(range(n)):
-        next_value = (0.0 if terminated else bootstrap) if t == n - 1 else values[t + 1]
-        delta = rewards[t] + gamma * next_value - values[t]
-        last = delta + (gamma * lam * last if t < n - 1 else 0.0)
-        advantages[t] = last
-    return advantages
-
-
-def rollout_buffer(model, episodes: list[list[Chunk]]) -> RolloutBuffer:
-    """PPO's rollout buffer (one env, the episodes one after another) from whole episodes."""
-    parts = [_episode_arrays(model, chunks) for chunks in episodes]
-    size = sum(len(p["rewards"]) for p in parts)
-    buffer = RolloutBuffer(size, model.observation_space, model.action_space, device=model.device,
-                           gamma=model.gamma, gae_lambda=model.gae_lambda, n_envs=1)  # fmt: skip
-    for name in ("observations", "actions", "rewards", "values", "log_probs", "advantages",
-                 "returns", "episode_starts"):  # fmt: skip
-        data = np.concatenate([p[name] for p in parts])
-        target = getattr(buffer, name)
-        target[:] = data.reshape(target.shape)
-    buffer.pos, buffer.full = size, True
-    return buffer
-
-
-def _episode_arrays(model, chunks: list[Chunk]) -> dict[str, np.ndarray]:
-    obs = np.concatenate([c.obs for c in chunks])
-    shape = model.observation_space.shape
-    if obs.shape[1:] != shape:  # channel-last camera frames, as SB3's VecTransposeImage does
-        obs = np.transpose(obs, (0, 3, 1, 2))
-    rewards = np.concatenate([c.rewards for c in chunks])
-    values = np.concatenate([c.values for c in chunks])
-    last = chunks[-1]
-    advantages = episode_advantages(rewards, values, terminated=last.terminated,
-                                    bootstrap=last.bootstrap, gamma=model.gamma,
-                                    lam=model.gae_lambda)  # fmt: skip
-    starts = np.zeros(len(rewards), np.float32)
-    starts[0] = 1.0
-    return {
-        "observations": obs, "actions": np.concatenate([c.actions for c in chunks]),
-        "rewards": rewards, "values": values,
-        "log_probs": np.concatenate([c.log_probs for c in chunks]),
-        "advantages": advantages, "returns": advantages + values, "episode_starts": starts,
-    }  # fmt: skip
 
 
 def worker_count(workers: int, spec) -> int:
@@ -306,7 +262,7 @@ class StreamedExperience:
                         s.set_watch(self._frame_worker() if watched else None)
                     for entry_id, msg in s.read_frames(last_id, block_ms=250):
                         last_id = entry_id
-                        frame = _frame(msg)
+                        frame = read_frame(msg)
                         if watched and frame is not None:
                             hooks.on_frame(frame)
                 except Exception:  # noqa: BLE001 - video is best effort; the beat goes on
@@ -375,12 +331,12 @@ class StreamedExperience:
             row = self.pending.popleft()
             laps = sorted(row.laps.values(), key=lambda m: str(m.get("ticket")))
             outcome = EvaluationOutcome(
-                progress=[_num(m.get("progress")) for m in laps],
+                progress=[finite(m.get("progress")) for m in laps],
                 statuses=[str(m.get("status", ""))[:32] for m in laps],
-                lap_times=[[_num(t) for t in m.get("lap_times", [])][:100] for m in laps],
-                rewards=[_num(m.get("reward")) for m in laps],
+                lap_times=[[finite(t) for t in m.get("lap_times", [])][:100] for m in laps],
+                rewards=[finite(m.get("reward")) for m in laps],
             )
-            learner.evaluated(row.version, outcome, sum(_num(m.get("wall_s")) for m in laps))
+            learner.evaluated(row.version, outcome, sum(finite(m.get("wall_s")) for m in laps))
 
     def _publish(self, learner: Learner, version: int) -> None:
         state = learner.model.policy.state_dict()
@@ -430,24 +386,3 @@ def _kill(process) -> None:
         process.wait(timeout=10)
     except Exception:  # noqa: BLE001 - already gone
         pass
-
-
-def _num(value) -> float:
-    return float(value) if isinstance(value, int | float) and np.isfinite(value) else 0.0
-
-
-def _frame(msg: dict) -> dict | None:
-    """A frame message checked (JPEG bytes, numbers, a known phase) for the hooks."""
-    out = {}
-    for key in ("camera", "chase"):
-        jpeg = msg.get(key)
-        if not isinstance(jpeg, np.ndarray) or jpeg.dtype != np.uint8 or jpeg.ndim != 1:
-            return None
-        out[key] = jpeg
-    phase = msg.get("phase")
-    out["phase"] = phase if phase in ("training", "evaluation") else "training"
-    for key in ("progress", "lap", "iteration", "version"):
-        out[key] = _num(msg.get(key))
-    out["lap"], out["iteration"], out["version"] = (int(out[k]) for k in
-                                                    ("lap", "iteration", "version"))  # fmt: skip
-    return out

@@ -376,3 +376,25 @@ class Session:
 
     def close(self) -> None:
         self.r.close()
+
+
+def finite(value) -> float:
+    """A finite number from a message, else 0."""
+    return float(value) if isinstance(value, int | float) and np.isfinite(value) else 0.0
+
+
+def read_frame(msg: dict) -> dict | None:
+    """A frame message checked (JPEG bytes, numbers, a known phase) for the hooks."""
+    out = {}
+    for key in ("camera", "chase"):
+        jpeg = msg.get(key)
+        if not isinstance(jpeg, np.ndarray) or jpeg.dtype != np.uint8 or jpeg.ndim != 1:
+            return None
+        out[key] = jpeg
+    phase = msg.get("phase")
+    out["phase"] = phase if phase in ("training", "evaluation") else "training"
+    for key in ("progress", "lap", "iteration", "version"):
+        out[key] = finite(msg.get(key))
+    out["lap"], out["iteration"], out["version"] = (int(out[k]) for k in
+                                                    ("lap", "iteration", "version"))  # fmt: skip
+    return out

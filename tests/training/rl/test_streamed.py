@@ -17,14 +17,10 @@ from training.rl.metadata import build_metadata
 from training.rl.runner import TrainingConfig, TrainingHooks, experience_request, train
 from training.rl.simulation import launch_local
 from training.rollout.backends import StreamRollouts
+from training.rollout.buffers import episode_advantages, rollout_buffer
 from training.rollout.envs import EnvSpec
 from training.rollout.lockstep import LockstepExperience
-from training.rollout.streamed import (
-    StreamedExperience,
-    episode_advantages,
-    rollout_buffer,
-    worker_count,
-)
+from training.rollout.streamed import StreamedExperience, worker_count
 
 DISCRETE = [{"steering_angle": a, "speed": v} for a in (-30, 0, 30) for v in (1.0, 2.0)]
 REWARD = """
