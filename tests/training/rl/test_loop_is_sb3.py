@@ -1,0 +1,65 @@
+"""The one training loop's lockstep iteration is stable-baselines3's own ``learn()``, bit for
+bit: the experience source's ``collect_rollouts`` and the loop's ``train`` are the two halves of
+it, so a seed's steps and weights are what they were when the loop called ``learn()``. Trusted
+in-process reward and the tiny test network: no sandbox, a second or two."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from training.rl.algorithms import build_model
+from training.rl.checkpoints import load_weights
+from training.rl.hyperparams import parse_hyperparameters
+from training.rl.policies import TINY
+from training.rl.runner import TrainingConfig, TrainingHooks, train
+from training.rollout.envs import EnvSpec
+from training.rollout.lockstep import INITIAL_EPISODE_STEPS, plan_rollout_steps
+from training.rollout.vecenv import LocalVecEnv
+
+ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-30, 0, 30)]
+SPEC = EnvSpec(track="racecraft_oval", action_space=ACTIONS)
+pytestmark = pytest.mark.slow  # about 3 s quiet, 9 s on a loaded 2-core machine
+HP = parse_hyperparameters({"num_episodes_between_training": 2, "num_epochs": 3,
+                            "batch_size": 32})  # fmt: skip
+
+
+def reward(params: dict) -> float:
+    return 1.0 if params["all_wheels_on_track"] else 1e-3
+
+
+class One(TrainingHooks):
+    def __init__(self) -> None:
+        self.results, self.checkpoints = [], []
+
+    def on_iteration(self, result, checkpoint, rows) -> None:
+        self.results.append(result)
+        self.checkpoints.append(checkpoint)
+
+    def should_stop(self) -> bool:
+        return bool(self.results)
+
+
+def test_a_lockstep_iteration_is_sb3_learn_bit_for_bit():
+    hooks = One()
+    train(TrainingConfig(spec=SPEC, network=TINY, hyperparameters=HP, reward_function=reward,
+                         num_envs=2, eval_episodes=1, seed=7, device="cpu"), hooks)  # fmt: skip
+    [result] = hooks.results
+
+    venv = LocalVecEnv(SPEC, 2, reward)
+    try:
+        venv.seed(7)
+        model = build_model("clipped_ppo", venv, HP, network=TINY, seed=7)
+        n_steps = plan_rollout_steps(2, INITIAL_EPISODE_STEPS, 2)
+        model.set_rollout_steps(n_steps)
+        model.learn(total_timesteps=n_steps * 2, reset_num_timesteps=False)
+        assert result.steps == result.total_steps == model.num_timesteps == n_steps * 2
+        looped = build_model("clipped_ppo", venv, HP, network=TINY, seed=0)
+        load_weights(looped, hooks.checkpoints[0])
+        ours, sb3 = looped.policy.state_dict(), model.policy.state_dict()
+        assert ours.keys() == sb3.keys()
+        assert all(torch.equal(ours[k], sb3[k]) for k in ours)
+        fresh = build_model("clipped_ppo", venv, HP, network=TINY, seed=7).policy.state_dict()
+        assert any(not torch.equal(ours[k], fresh[k]) for k in ours)  # the update did learn
+    finally:
+        venv.close()
