@@ -47,6 +47,7 @@ def test_medians_laps_and_best_lap(bench) -> None:
     ]
     s = bench.summarise(runs)
     assert (s.median_s, s.median_steps, s.reached, s.runs) == (100.0, 30_000.0, 3, 3)
+    assert s.worst_s == 140.0
     assert s.lap_s == 9.5  # the 14th of the 27 qualifying laps
     assert s.best_lap_s == 8.7
 
@@ -55,20 +56,22 @@ def test_a_seed_that_missed_its_goal_makes_the_median_nan(bench) -> None:
     runs = [run(bench, 100.0, 30_000, [[9.0] * 3] * 3, 8.8), run(bench, None, None, best=9.9)]
     s = bench.summarise(runs)
     assert s.median_s is None and s.median_steps is None and s.reached == 1
+    assert s.worst_s is None  # a miss and no time limit: unknown
+    assert bench.summarise(runs, limit_s=480.0).worst_s == 480.0  # the miss counts as its limit
     assert s.lap_s == 9.0 and s.best_lap_s == 8.8
     assert bench.summarise([]).median_s is None
 
 
 def test_the_last_line_carries_every_figure_and_the_ratio(bench) -> None:
     defaults = bench.SetupSummary(40.0, 9_000.0, 31.25, 29.5, 3, 3)
-    fast = bench.SetupSummary(110.0, 33_000.0, 9.64, 8.91, 3, 3)
+    fast = bench.SetupSummary(110.0, 33_000.0, 9.64, 8.91, 3, 3, worst_s=150.0)
     assert bench.key_values(defaults, fast) == (
         "defaults_median_s=40.0 defaults_lap_s=31.25 fast_median_s=110.0 fast_lap_s=9.64 "
-        "best_lap_s=8.91 ratio=2.75"
+        "fast_worst_s=150.0 best_lap_s=8.91 ratio=2.75"
     )
     missed = bench.SetupSummary(None, None, None, 12.0, 0, 3)
     line = bench.key_values(defaults, missed)
-    assert "fast_median_s=nan fast_lap_s=nan best_lap_s=12.00 ratio=nan" in line
+    assert "fast_median_s=nan fast_lap_s=nan fast_worst_s=nan best_lap_s=12.00 ratio=nan" in line
 
 
 def test_the_machine_line_names_cores_and_load(bench) -> None:
@@ -82,15 +85,20 @@ def test_a_further_mode_adds_its_own_keys_against_the_first_modes_fast_median(be
     baseline = bench.SetupSummary(120.0, 33_000.0, 9.64, 8.91, 3, 3)
     assert bench.mode_key_values("streams", defaults, fast, baseline) == (
         "streams_defaults_median_s=40.0 streams_defaults_lap_s=31.25 "
-        "streams_fast_median_s=90.0 streams_fast_lap_s=9.50 streams_ratio=0.75"
+        "streams_fast_median_s=90.0 streams_fast_lap_s=9.50 streams_fast_worst_s=nan "
+        "streams_ratio=0.75"
     )
     missed = bench.SetupSummary(None, None, None, None, 0, 3)
     assert bench.mode_key_values("streams", defaults, fast, missed).endswith("streams_ratio=nan")
 
 
 def test_each_mode_trains_as_a_console_job_of_that_mode_would(bench) -> None:
+    from training.rl.simulation import launch_local
+    from training.rollout.backends import LocalRollouts, StreamRollouts
+
     local = bench.rollouts("lockstep", "")
-    assert local.num_workers == 2 and not getattr(local, "streamed", False)
+    assert local == LocalRollouts(num_workers=2)
     streams = bench.rollouts("streams", "redis://127.0.0.1:6379/15")
-    assert streams.streamed and streams.workers == 2 and streams.launch is None
+    assert isinstance(streams, StreamRollouts) and streams.workers == 2
+    assert streams.launch is launch_local  # local processes, as RACECRAFT_SIMULATION=streams
     assert streams.redis_url == "redis://127.0.0.1:6379/15"
