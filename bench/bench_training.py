@@ -31,9 +31,10 @@ read from ``shared/tracks`` next to the repository (never committed); any built-
 Last line: ``defaults_median_s=… defaults_lap_s=… fast_median_s=… fast_lap_s=… fast_worst_s=…
 best_lap_s=… ratio=…``: median seconds to the goal, the median lap of the qualifying
 evaluations, the slowest seed's seconds to the fast goal (a seed that missed it counts as
-``--minutes``), the best evaluated lap of any run, and ``ratio`` = fast_median_s / defaults_median_s (what a fast lap
-costs over a clean slow one, both measured in this run). ``nan`` where a run missed its goal
-within ``--minutes``. Goals (issue 14, quiet 2-core machine): fast ≤ 120 s, defaults ≤ 60 s.
+``--minutes``), the best evaluated lap of any run, and ``ratio`` = fast_median_s /
+defaults_median_s (what a fast lap costs over a clean slow one, both measured in this run).
+``nan`` where a run missed its goal within ``--minutes``. Goals (issue 14, quiet 2-core
+machine): fast ≤ 120 s, defaults ≤ 60 s.
 These keys are the first mode's; each further mode adds its own, prefixed with its name
 (``streams_defaults_median_s=…``), and ``{mode}_ratio=`` = its fast median / the first mode's.
 """
@@ -346,7 +347,8 @@ def main() -> None:
         if s.runs:
             print(f"{mode} {name}: median {fmt(s.median_s)} s, {fmt(s.median_steps, 0)} steps "
                   f"to the goal ({s.reached} of {s.runs} seeds reached it; slowest "
-                  f"{fmt(s.worst_s)} s), median qualifying lap {fmt(s.lap_s, 2)} s, best lap {fmt(s.best_lap_s, 2)} s")  # fmt: skip
+                  f"{fmt(s.worst_s)} s), median qualifying lap {fmt(s.lap_s, 2)} s, "
+                  f"best lap {fmt(s.best_lap_s, 2)} s")  # fmt: skip
     print(f"machine after: {machine()}")
     first = modes[0]
     line = [key_values(summaries[first, "defaults"], summaries[first, "fast"])]
