@@ -34,6 +34,22 @@ SIMTRACE_COLUMNS = (
 
 
 class TraceRow(NamedTuple):
+    """One step, as SimApp logs it. Two columns need more than the env knows:
+
+    ``wall_clock``: when the step happened, seconds since the epoch (SimApp's ``time.time()``),
+    strictly increasing within an episode; ``deepracer-utils`` divides simulated by wall-clock
+    time for its real-time factor and takes an iteration's first and last stamps for its
+    timing. The env leaves it 0 so that its steps never depend on wall time; whoever records
+    the row stamps it then (:meth:`stamped`: the rollout worker as the car steps, the
+    evaluation as it drives).
+
+    ``pause_duration``: SimApp's penalty pause still to serve, seconds: the penalty the car
+    earned on this step (off track, crashed, reversed or immobilised where the race resets the
+    car), 0 on every other step. SimApp then logs ``pause`` rows while the time runs out;
+    Racecraft serves the pause within the step (the bots drive on, the clock jumps), so this
+    row's ``tstamp`` already includes it and no ``pause`` rows follow.
+    """
+
     episode: int
     steps: int
     x: float

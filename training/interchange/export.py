@@ -14,7 +14,8 @@ Exported with torch's TorchScript-based exporter (``dynamo=False``), opset 17: t
 ("dynamo") exporter needs the onnxscript package, which is not a dependency, and the legacy
 exporter handles these small static graphs reliably, offline.
 
-**Archives** are deterministic tar.gz files (:mod:`training.interchange.tarball`).
+**Archives** are deterministic tar.gz files (:mod:`training.interchange.tarball`); the logs
+archive's layout is :mod:`training.interchange.logarchive`'s.
 
 **Checkpoints** are SB3 ``model.save()`` zips. :func:`load_checkpoint` never unpickles the
 file's ``data`` (SB3 stores classes with cloudpickle there, which would run code from an
@@ -36,6 +37,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from torch import nn
 
 from training.interchange.carmodel import build_car_archive  # noqa: F401 - re-exported
+from training.interchange.logarchive import build_logs_archive  # noqa: F401 - re-exported
 from training.interchange.tarball import (  # noqa: F401 - re-exported for callers
     ARCHIVE_MTIME,
     ExportError,
@@ -236,10 +238,3 @@ def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
             last = "last" if "last" in checkpoints else checkpoints[-1]
         kept[CHECKPOINTS_INDEX] = checkpoints_index(best, last)
     return deterministic_tar_gz(kept)
-
-
-def build_logs_archive(files: Mapping[str, bytes]) -> bytes:
-    """Training or evaluation logs (metrics JSON, sim-trace CSVs, logs) as a tar.gz."""
-    if not files:
-        raise ExportError("there are no logs to download yet")
-    return deterministic_tar_gz(files)

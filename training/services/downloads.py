@@ -12,6 +12,7 @@ from training.interchange.export import (
     build_virtual_model_archive,
     export_onnx,
 )
+from training.interchange.layout import evaluation_stamp
 from training.models import EvaluationJob, RacingModel
 from training.rl.checkpoints import CheckpointError, load_checkpoint
 from training.services.model_files import model_metadata, store_failure
@@ -123,12 +124,19 @@ def virtual_model_archive(model: RacingModel) -> bytes:
 
 
 def logs_archive(model: RacingModel) -> bytes:
-    """Sim-traces, metrics and evaluation logs in DeepRacer-for-Cloud's folder layout (the
-    model's folder as ``deepracer-utils`` reads it: extract and point ``DeepRacerLog`` at it)."""
+    """Sim-traces, metrics, metadata and hyperparameters in the DeepRacer console's logs
+    layout under the model's folder name (:mod:`training.interchange.logarchive`):
+    ``deepracer-utils`` reads the download as it is (``TarFileHandler``) or extracted
+    (``DeepRacerLog("<folder>")``). The training sim-traces' run folder is named after the
+    model's creation, ``training-<YYYYMMDDhhmmss>``."""
     files = _collect(model, _in_logs, "logs")
     if not any(n.startswith(_LOG_FOLDERS) for n in files):
         raise ServiceError("there are no logs yet: train or evaluate the model first")
-    return build_logs_archive(files)
+    return build_logs_archive(
+        files,
+        folder=model.store_folder,
+        training_run=f"training-{evaluation_stamp(model.created_at)}",
+    )
 
 
 def evaluation_video(evaluation: EvaluationJob) -> Media:

@@ -198,13 +198,16 @@ def test_virtual_model_archive_needs_files(ppo_discrete, missing) -> None:
 
 def test_logs_archive_and_names() -> None:
     logs = {"training-simtrace/1-iteration.csv": b"a\n", "metrics/TrainingMetrics.json": b"{}"}
-    archive = build_logs_archive(logs)
-    assert sorted(members(archive)) == sorted(logs)
+    archive = build_logs_archive(logs, folder="u1-m", training_run="training-20260101000000")
+    assert sorted(members(archive)) == [  # the console's layout, which TarFileHandler reads
+        "u1-m/metrics/TrainingMetrics.json",
+        "u1-m/sim-trace/training/training-20260101000000/training-simtrace/1-iteration.csv",
+    ]
     assert archive[:2] == b"\x1f\x8b"
     assert gzip.decompress(archive)  # the gzip header carries no name and no time
     assert archive[4:8] == b"\x00\x00\x00\x00"
     with pytest.raises(ExportError):
-        build_logs_archive({})
+        build_logs_archive({}, folder="u1-m", training_run="t")
     for bad in ("/etc/passwd", "../x", "a/../../b", "a\\b"):
         with pytest.raises(ExportError, match="bad archive member name"):
             deterministic_tar_gz({bad: b"x"})

@@ -95,10 +95,10 @@ def test_deepracer_utils_reads_what_the_job_recorded(s3, tmp_path) -> None:
     log.load_evaluation_trace(force=True)
     _check_evaluation(log.dataframe(), evaluation)
 
-    # The logs archive, extracted: the same folder.
+    # The logs archive, extracted: the model's folder, in the console's layout.
     with tarfile.open(fileobj=io.BytesIO(downloads.logs_archive(model))) as tar:
         tar.extractall(tmp_path / "logs", filter="data")
-    local = DeepRacerLog(model_folder=str(tmp_path / "logs"))
+    local = DeepRacerLog(model_folder=str(tmp_path / "logs" / model.store_folder))
     local.load_training_trace()
     _check_training_trace(local.dataframe(), training)
     local.load_evaluation_trace(force=True)

@@ -113,7 +113,8 @@ def test_train_stop_evaluate_clone_export_delete(celery_worker: ChildProcess, st
 
     logs = downloads.logs_archive(model)
     with tarfile.open(fileobj=io.BytesIO(logs)) as tar:
-        assert any(n.startswith("training-simtrace/") for n in tar.getnames())
+        assert any(n.startswith(f"{model.store_folder}/sim-trace/training/")
+                   for n in tar.getnames())  # fmt: skip
 
     services.model_delete(model=clone, user=alice)
     assert not store.list(keys_for(clone.pk).prefix)
