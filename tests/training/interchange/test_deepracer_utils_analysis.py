@@ -17,8 +17,9 @@ import pytest
 from racing.env import RacingEnv
 from racing.rules import RaceRules
 from racing.simtrace import TraceRow, to_csv
-from training.interchange.logarchive import build_logs_archive
+from training.interchange.logarchive import build_logs_archive, logs_archive_names
 from training.interchange.logbook import LoggedIteration, TrainingLog
+from training.interchange.tarball import ExportError
 from training.rollout.envs import EnvRunner
 
 pytest.importorskip("deepracer.logs")
@@ -195,3 +196,25 @@ def test_a_served_penalty_reads_as_simapps_pause_duration(tmp_path: Path) -> Non
     jump = df["tstamp"].diff()[paused.index[0]]
     assert jump == pytest.approx(2.0 + STEP_MS / 1000, abs=0.002)
     assert (np.diff(df["wall_clock"].to_numpy()) > 0).all()
+
+
+def test_every_stored_log_finds_its_place() -> None:
+    """DeepRacer-for-Cloud's names in the store, and older evaluations' ``evaluation/<id>/``,
+    move under ``sim-trace/``; the rest keep their names."""
+    stored = {
+        "training-simtrace/0-iteration.csv": b"t",
+        f"evaluation-{EVAL_STAMP}/evaluation-simtrace/0-iteration.csv": b"e",
+        "evaluation/17/evaluation-simtrace/0-iteration.csv": b"old",
+        "metrics/EvaluationMetrics-20260102130000.json": b"{}",
+        "reward_function.py": b"def reward_function(params): return 1.0\n",
+    }
+    assert logs_archive_names(stored, training_run=RUN) == {
+        f"sim-trace/training/{RUN}/training-simtrace/0-iteration.csv": b"t",
+        f"sim-trace/evaluation/{EVAL_STAMP}/evaluation-simtrace/0-iteration.csv": b"e",
+        "sim-trace/evaluation/17/evaluation-simtrace/0-iteration.csv": b"old",
+        "metrics/EvaluationMetrics-20260102130000.json": b"{}",
+        "reward_function.py": b"def reward_function(params): return 1.0\n",
+    }
+    for folder, run in (("", RUN), (FOLDER, ""), ("a/b", RUN), (FOLDER, "..")):
+        with pytest.raises(ExportError, match="bad folder name"):
+            build_logs_archive(stored, folder=folder, training_run=run)
