@@ -296,3 +296,23 @@ class EvaluationJob(Job):
     @property
     def lap_rows(self) -> list[dict]:
         return list(self.results.get("laps", [])) if isinstance(self.results, dict) else []
+
+
+class TrackFile(models.Model):
+    """An imported track's file (DeepRacer's ``.npy`` waypoints, as the catalogue stores it),
+    kept in the database so that every machine gets it by content: a worker that shares no disk
+    with the web writes it into its own ``RACECRAFT_TRACKS_DIR`` before a job needs it
+    (``services.tracks_sync``). Built-in tracks ship with the code and have no row."""
+
+    track_id = models.CharField(max_length=64, unique=True)
+    name = models.CharField(max_length=200, blank=True)
+    sha256 = models.CharField(max_length=64)
+    data = models.BinaryField()
+    created_by = models.ForeignKey(
+        settings.AUTH_USER_MODEL, null=True, blank=True, on_delete=models.SET_NULL,
+        related_name="+",
+    )  # fmt: skip
+    created_at = models.DateTimeField(default=timezone.now)
+
+    def __str__(self) -> str:
+        return f"{self.track_id} ({self.sha256[:12]})"

@@ -21,11 +21,10 @@ from celery.signals import worker_init, worker_process_init, worker_ready
 from django.db import close_old_connections
 
 from training import dispatch, services, store
-from training.rl.simulation import serve_simulation
 from training.services.analysis import replay_run
 from training.services.background import car_export_run, model_import_run, uploads_prune
 from training.services.rewards import reward_validation_run
-from training.worker.common import SIMULATE_EPISODES
+from training.worker.common import SIMULATE_EPISODES, simulate_here
 from training.worker.evaluation import run_evaluation_job
 from training.worker.training import run_training_job
 
@@ -47,7 +46,7 @@ def simulate_episodes(**kwargs) -> str:
     """A simulation worker that owns its episodes, for a streamed trainer (queue
     ``simulation``). Acknowledged early: a dead worker's episodes are the trainer's to give to
     another worker, never a task to replay."""
-    return serve_simulation(**kwargs)
+    return simulate_here(**kwargs)
 
 
 @shared_task(name=dispatch.REPLAY_REWARD)

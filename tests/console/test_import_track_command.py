@@ -1,4 +1,5 @@
-"""``manage.py import_track``: DeepRacer files in, clear errors for bad ones."""
+"""``manage.py import_track``: DeepRacer files in (recorded for every machine), clear errors
+for bad ones."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ import pytest
 from django.core.management import CommandError, call_command
 
 from racing.tracks import TrackCatalog
+from training.models import TrackFile
 
+pytestmark = pytest.mark.django_db  # the command records the track for every machine
 SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "tracks"
 
 
@@ -29,6 +32,8 @@ def test_imports_a_deepracer_file(tracks_dir):
     assert "imported 'reinvent_base' (re:Invent 2018): 17.71 m long" in out.getvalue()
     info = TrackCatalog([tracks_dir]).info("reinvent_base")
     assert info.source == "imported" and info.direction == "ccw"
+    recorded = TrackFile.objects.get(track_id="reinvent_base")
+    assert bytes(recorded.data) == (tracks_dir / "reinvent_base.npy").read_bytes()
     with pytest.raises(CommandError, match="exists already"):
         call_command("import_track", str(source))
 
@@ -40,6 +45,7 @@ def test_bad_files_are_refused_clearly(tracks_dir, tmp_path):
         call_command("import_track", str(bad))
     with pytest.raises(CommandError, match="no such file"):
         call_command("import_track", str(tmp_path / "missing.npy"))
+    assert not TrackFile.objects.exists()
     assert not TrackCatalog([tracks_dir]).list() or all(
         t.source == "racecraft" for t in TrackCatalog([tracks_dir]).list()
     )

@@ -16,6 +16,8 @@ a message a user can act on. Side effects on other processes start only after th
   the web save a reward function without running it.
 - :mod:`~training.services.background`: model imports and car exports on a worker.
 - :mod:`~training.services.tracks`: importing a track file from the console.
+- :mod:`~training.services.trackfiles`: imported tracks by content, from the database to each
+  machine's folder.
 
 Reads go through :mod:`training.selectors`.
 """
@@ -61,26 +63,31 @@ from training.services.racing import (
     sensor_advice,
 )
 from training.services.records import evaluation_record_logs, model_mark_checkpoint
-from training.services.tracks import TrackCheck, default_track_id, track_check, track_import
+from training.services.trackfiles import tracks_check_recorded, tracks_sync
+from training.services.tracks import (
+    TrackCheck,
+    default_track_id,
+    track_add,
+    track_check,
+    track_import,
+)
 
 __all__ = [
     "MAX_MINUTES",
     "MIN_MINUTES",
     "ModelSpec",
+    "RACE_DEFAULTS",
     "RewardRejected",
+    "SUPPORTED_RACE_TYPES",
     "ServiceError",
+    "TrackCheck",
     "check_extra_tracks",
     "check_model_spec",
     "check_name",
     "check_race_type",
-    "RACE_DEFAULTS",
-    "SUPPORTED_RACE_TYPES",
-    "parse_object_positions",
-    "race_config",
-    "race_settings",
-    "sensor_advice",
     "check_reward",
     "check_track",
+    "default_track_id",
     "evaluation_record_logs",
     "evaluation_start",
     "job_begin",
@@ -88,12 +95,12 @@ __all__ = [
     "job_complete",
     "job_fail",
     "job_heartbeat",
+    "job_resumed_from",
     "job_stop",
     "job_stop_requested",
     "jobs_fail_for_worker",
     "jobs_reap_orphans",
     "jobs_requeue_for_worker",
-    "job_resumed_from",
     "model_clone",
     "model_create",
     "model_delete",
@@ -102,10 +109,15 @@ __all__ = [
     "model_metadata",
     "model_settle",
     "model_update_reward",
-    "TrackCheck",
-    "default_track_id",
+    "parse_object_positions",
+    "race_config",
+    "race_settings",
+    "sensor_advice",
+    "track_add",
     "track_catalog",
     "track_check",
     "track_import",
+    "tracks_check_recorded",
+    "tracks_sync",
     "training_start",
 ]

@@ -69,6 +69,7 @@ from training.services.job_states import (
     transition,
 )
 from training.services.racing import race_settings
+from training.services.trackfiles import tracks_check_recorded
 from training.signals import evaluation_finished
 
 __all__ = [
@@ -135,6 +136,7 @@ def training_start(*, model: RacingModel, user, enqueue: bool = True) -> Trainin
             raise ServiceError("this model is busy; wait for its current job to finish")
         if model.training_jobs.filter(status=JobStatus.COMPLETED).exists():
             raise ServiceError("this model has been trained; clone it to train it further")
+        tracks_check_recorded([track_id for track_id, _ in model.training_tracks])
         _check_job_quota(user)
         job = TrainingJob.objects.create(model=model, max_minutes=model.max_minutes)
         model.status = RacingModel.Status.QUEUED

@@ -2,8 +2,10 @@
 
 The same validation as ``manage.py import_track`` (:func:`racing.tracks.import_track`: the id,
 the size, the waypoints, the geometry), run in a scratch folder next to the catalogue; only a
-file that passed is moved in, with ``os.replace``, so a bad or interrupted upload never leaves
-a half-written track behind. Imported tracks are shared by every user of the installation.
+file that passed is recorded in the database (:mod:`training.services.trackfiles`: every
+machine gets it from there) and moved in, with ``os.replace``, so a bad or interrupted upload
+never leaves a half-written track behind. Imported tracks are shared by every user of the
+installation.
 """
 
 from __future__ import annotations
@@ -20,7 +22,9 @@ from racing.preview import render_preview_png
 from racing.track import TrackError
 from racing.tracks import MAX_TRACK_FILE_BYTES, TrackCatalog, TrackInfo, import_track
 from training.errors import ServiceError
+from training.models import TrackFile
 from training.services.checks import track_catalog
+from training.services.trackfiles import trackfile_save, tracks_sync
 
 
 @dataclass(frozen=True)
@@ -37,7 +41,12 @@ def default_track_id(filename: str) -> str:
     return re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_-")[:64] or "track"
 
 
-def _validated(data: bytes, track_id: str, name: str, scratch: Path) -> TrackInfo:
+def _taken(track_id: str, local_ids: list[str]) -> bool:
+    return track_id in local_ids or TrackFile.objects.filter(track_id=track_id).exists()
+
+
+def _validated(data: bytes, track_id: str, name: str, scratch: Path, *,
+               overwrite: bool = False) -> TrackInfo:  # fmt: skip
     if not data:
         raise ServiceError("choose a DeepRacer .npy track file", field="file")
     if len(data) > MAX_TRACK_FILE_BYTES:
@@ -45,7 +54,7 @@ def _validated(data: bytes, track_id: str, name: str, scratch: Path) -> TrackInf
             f"the file is {len(data):,} bytes; a track file is at most {MAX_TRACK_FILE_BYTES:,}",
             field="file",
         )
-    if track_id in track_catalog().ids():
+    if not overwrite and _taken(track_id, track_catalog().ids()):
         raise ServiceError(f"a track with id {track_id!r} exists already", field="track_id")
     try:
         return import_track(data, track_id=track_id, dest_dir=scratch, name=name)
@@ -70,17 +79,33 @@ def track_check(*, data: bytes, track_id: str, name: str = "") -> TrackCheck:
 
 
 def track_import(*, user, data: bytes, track_id: str, name: str = "") -> TrackInfo:
-    """Add a validated track file to the catalogue (``RACECRAFT_TRACKS_DIR``) for everyone.
+    """Add a validated track file to the catalogue for everyone: recorded in the database
+    (every machine writes it into its own ``RACECRAFT_TRACKS_DIR`` when it needs it,
+    :func:`~training.services.trackfiles.tracks_sync`), and into this machine's folder now.
 
     ``user`` must be signed in. All or nothing: the files are written to a scratch folder and
-    moved in once they passed (the ``.npy`` last, which is what the catalogue lists)."""
+    moved in once they passed and were recorded (the ``.npy`` last, which is what the catalogue
+    lists)."""
     if user is None or not user.is_authenticated:
         raise ServiceError("sign in to import a track")
+    return track_add(data=data, track_id=track_id, name=name, user=user)
+
+
+def track_add(*, data: bytes, track_id: str, name: str = "", user=None,
+              overwrite: bool = False) -> TrackInfo:  # fmt: skip
+    """:func:`track_import` for the command line (``manage.py import_track``), where
+    ``overwrite`` replaces a track of that id everywhere."""
     dest = Path(settings.RACECRAFT_TRACKS_DIR)
+    tracks_sync(dest)  # an id taken on another machine is taken here too
     with _scratch(dest) as scratch:
-        _validated(data, track_id, name, Path(scratch))
-        if (dest / f"{track_id}.npy").exists():  # raced by another upload
+        _validated(data, track_id, name, Path(scratch), overwrite=overwrite)
+        if not overwrite and _taken(track_id, [p.stem for p in dest.glob("*.npy")]):
+            # raced by another upload
             raise ServiceError(f"a track with id {track_id!r} exists already", field="track_id")
+        stored = (Path(scratch) / f"{track_id}.npy").read_bytes()
+        row = trackfile_save(track_id=track_id, name=name or track_id, data=stored, user=user)
+        (Path(scratch) / f"{track_id}.sha256").write_text(row.sha256)
         os.replace(Path(scratch) / f"{track_id}.json", dest / f"{track_id}.json")
         os.replace(Path(scratch) / f"{track_id}.npy", dest / f"{track_id}.npy")
+        os.replace(Path(scratch) / f"{track_id}.sha256", dest / f"{track_id}.sha256")
     return track_catalog().info(track_id)

@@ -15,11 +15,11 @@ from racing.race import RaceConfig, RaceType
 from racing.simtrace import SIMTRACE_COLUMNS, TraceRow
 from training import dispatch
 from training.models import RacingModel
-from training.rl.simulation import launch_local
+from training.rl.simulation import launch_local, serve_simulation
 from training.rollout.backends import LocalRollouts, RolloutBackend, StreamRollouts
 from training.rollout.envs import EnvSpec
 from training.sandbox import RewardFunctionError
-from training.services import job_fail, job_heartbeat, job_stop_requested
+from training.services import job_fail, job_heartbeat, job_stop_requested, tracks_sync
 from training.services.racing import race_config
 from training.storage import StoreError
 
@@ -87,7 +87,10 @@ def env_spec(
     race: RaceConfig | None = None,
 ) -> EnvSpec:
     """The simulator a job of ``model`` drives: its own tracks (all of them for a model that
-    trains on several) and race, or the track and race given."""
+    trains on several) and race, or the track and race given. Imported tracks are written into
+    this machine's folder first (:func:`~training.services.tracks_sync`): a worker may share no
+    disk with the web that took the upload."""
+    tracks_sync()
     if race is None:
         race = race_config(model.race_type, model.race_config)
     own = track_id is None and direction is None
@@ -118,6 +121,18 @@ def rollout_backend() -> RolloutBackend:
         return StreamRollouts(redis_url=settings.REDIS_URL, workers=2, launch=launch_local,
                               prefix=settings.REDIS_PREFIX or "")  # fmt: skip
     return LocalRollouts()
+
+
+def simulate_here(**kwargs) -> str:
+    """A streamed simulation worker for a trainer on another machine (the ``simulation``
+    queue's task): the imported tracks from the database into this machine's folder, and the
+    trainer's specs pointed at that folder (never at a path of the trainer's machine)."""
+    tracks_sync()
+    here = [str(settings.RACECRAFT_TRACKS_DIR)]
+    for key in ("spec", "eval_spec"):
+        if isinstance(kwargs.get(key), dict):
+            kwargs[key] = {**kwargs[key], "track_dirs": here}
+    return serve_simulation(**kwargs)
 
 
 def csv_text(rows: list[list]) -> str:

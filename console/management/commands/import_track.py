@@ -1,15 +1,15 @@
 """``manage.py import_track FILE.npy [--id ID] [--name NAME]``: add a DeepRacer track file to
-the catalogue (RACECRAFT_TRACKS_DIR), validated first; the gallery and model forms list it."""
+the catalogue, validated first (recorded in the database, so that every machine has it, and
+written into RACECRAFT_TRACKS_DIR); the gallery and model forms list it."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from django.conf import settings
 from django.core.management.base import BaseCommand, CommandError, CommandParser
 
-from racing.track import TrackError
-from racing.tracks import import_track
+from training import services
+from training.errors import ServiceError
 
 
 class Command(BaseCommand):
@@ -27,14 +27,9 @@ class Command(BaseCommand):
         if not path.is_file():
             raise CommandError(f"{file}: no such file")
         try:
-            info = import_track(
-                path.read_bytes(),
-                track_id=track_id or path.stem,
-                dest_dir=settings.RACECRAFT_TRACKS_DIR,
-                name=name,
-                overwrite=overwrite,
-            )
-        except TrackError as exc:
+            info = services.track_add(data=path.read_bytes(), track_id=track_id or path.stem,
+                                      name=name, overwrite=overwrite)  # fmt: skip
+        except ServiceError as exc:
             raise CommandError(f"{path.name}: {exc}") from None
         self.stdout.write(
             f"imported {info.id!r} ({info.name}): {info.length_m:.2f} m long, "

@@ -1,0 +1,135 @@
+"""Imported tracks by content (issue 25): a track uploaded on the web is recorded in the
+database, and a machine that shares no disk with the web (here: another tracks folder) gets it
+from there before a job needs it, byte for byte, once per version; a job on a track no machine
+can have is refused before it is queued."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import io
+import json
+
+import numpy as np
+import pytest
+from django.apps import apps
+
+from racing.track import Track
+from racing.tracks import TrackCatalog
+from tests.training.services.factory import create
+from training import services
+from training.errors import ServiceError
+from training.models import TrackFile
+from training.worker import common
+
+pytestmark = pytest.mark.django_db
+
+
+def _npy(track_id: str = "racecraft_oval", scale: float = 1.0) -> bytes:
+    array = TrackCatalog().load(track_id).to_array() * scale
+    buffer = io.BytesIO()
+    np.save(buffer, array)
+    return buffer.getvalue()
+
+
+@pytest.fixture
+def web(tmp_path, settings):
+    settings.RACECRAFT_TRACKS_DIR = tmp_path / "web-tracks"
+    return settings.RACECRAFT_TRACKS_DIR
+
+
+def test_an_upload_is_recorded_and_another_machine_gets_it_by_content(alice, web, tmp_path,
+                                                                      settings):  # fmt: skip
+    info = services.track_import(user=alice, data=_npy(), track_id="my_oval", name="My oval")
+    row = TrackFile.objects.get(track_id="my_oval")
+    stored = (web / "my_oval.npy").read_bytes()
+    assert bytes(row.data) == stored and row.sha256 == hashlib.sha256(stored).hexdigest()
+    assert row.name == "My oval" and row.created_by == alice and info.name == "My oval"
+    assert (web / "my_oval.sha256").read_text() == row.sha256
+
+    worker = tmp_path / "worker-tracks"  # the worker host's own folder: empty
+    settings.RACECRAFT_TRACKS_DIR = worker
+    assert services.tracks_sync() == ["my_oval"]
+    assert (worker / "my_oval.npy").read_bytes() == stored
+    track = TrackCatalog([worker]).load("my_oval")
+    assert isinstance(track, Track) and track.name == "My oval"
+    assert services.tracks_sync() == []  # cached by content: nothing written twice
+    assert not [p for p in worker.iterdir() if p.name.startswith(".sync-")]  # no leftovers
+
+
+def test_a_track_imported_again_is_written_anew_everywhere(web, tmp_path, settings):
+    services.track_add(data=_npy(), track_id="my_oval")
+    worker = tmp_path / "worker-tracks"
+    assert services.tracks_sync(worker) == ["my_oval"]
+    before = (worker / "my_oval.npy").read_bytes()
+    services.track_add(data=_npy(scale=1.1), track_id="my_oval", overwrite=True)
+    assert services.tracks_sync(worker) == ["my_oval"]
+    after = (worker / "my_oval.npy").read_bytes()
+    assert after != before and after == (web / "my_oval.npy").read_bytes()
+    with pytest.raises(ServiceError, match="exists already"):
+        services.track_add(data=_npy(), track_id="my_oval")
+
+
+def test_an_id_taken_on_another_machine_is_taken_here(alice, web, tmp_path, settings):
+    services.track_import(user=alice, data=_npy(), track_id="my_oval")
+    settings.RACECRAFT_TRACKS_DIR = tmp_path / "second-web"
+    with pytest.raises(ServiceError, match="exists already"):
+        services.track_import(user=alice, data=_npy(), track_id="my_oval")
+
+
+def test_a_damaged_record_is_never_written(web, tmp_path):
+    TrackFile.objects.create(track_id="bad", name="bad", data=b"not this", sha256="0" * 64)
+    TrackFile.objects.create(track_id="../escape", name="x", data=b"x",
+                             sha256=hashlib.sha256(b"x").hexdigest())  # fmt: skip
+    worker = tmp_path / "worker-tracks"
+    assert services.tracks_sync(worker) == []
+    assert not (worker / "bad.npy").exists() and not (tmp_path / "escape.npy").exists()
+
+
+def test_a_job_sees_the_track_on_a_worker_that_shares_no_disk(alice, web, tmp_path, settings):
+    services.track_import(user=alice, data=_npy(), track_id="my_oval")
+    model = create(alice, track_id="my_oval")
+    settings.RACECRAFT_TRACKS_DIR = tmp_path / "worker-tracks"
+    spec = common.env_spec(model)
+    assert spec.track_dirs == (str(tmp_path / "worker-tracks"),)
+    env = spec.make(None)
+    try:
+        assert env.track.track_id == "my_oval"
+    finally:
+        env.close()
+
+
+def test_a_remote_simulation_worker_reads_its_own_folder(alice, web, tmp_path, settings,
+                                                         monkeypatch):  # fmt: skip
+    services.track_import(user=alice, data=_npy(), track_id="my_oval")
+    seen = {}
+    monkeypatch.setattr(common, "serve_simulation", lambda **kwargs: seen.update(kwargs) or "ok")
+    worker = tmp_path / "worker-tracks"
+    settings.RACECRAFT_TRACKS_DIR = worker
+    trainer_spec = {"track": "my_oval", "track_dirs": ["/trainer/only/var/tracks"]}
+    assert common.simulate_here(spec=trainer_spec, eval_spec=dict(trainer_spec), seed=1) == "ok"
+    assert seen["spec"]["track_dirs"] == seen["eval_spec"]["track_dirs"] == [str(worker)]
+    assert seen["seed"] == 1 and (worker / "my_oval.npy").is_file()
+
+
+def test_training_on_a_track_no_machine_has_is_refused_before_it_is_queued(alice, web):
+    services.track_import(user=alice, data=_npy(), track_id="my_oval")
+    model = create(alice, track_id="my_oval")
+    TrackFile.objects.filter(track_id="my_oval").delete()
+    for suffix in (".npy", ".json", ".sha256"):
+        (web / f"my_oval{suffix}").unlink()
+    with pytest.raises(ServiceError, match="'my_oval' is no longer in the catalogue"):
+        services.training_start(model=model, user=alice)
+    assert not model.training_jobs.exists()
+
+
+def test_tracks_imported_before_the_database_held_them_are_adopted(web):
+    web.mkdir(parents=True)
+    (web / "old_oval.npy").write_bytes(_npy())
+    (web / "old_oval.json").write_text(json.dumps({"name": "Old oval"}))
+    migration = importlib.import_module("training.migrations.0007_track_files")
+    migration.adopt_local_tracks(apps, None)
+    row = TrackFile.objects.get(track_id="old_oval")
+    assert row.name == "Old oval" and bytes(row.data) == (web / "old_oval.npy").read_bytes()
+    migration.adopt_local_tracks(apps, None)  # again: nothing twice
+    assert TrackFile.objects.filter(track_id="old_oval").count() == 1

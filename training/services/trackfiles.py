@@ -1,0 +1,101 @@
+"""Imported tracks by content: their files live in the database (:class:`TrackFile`), and each
+machine writes them into its own ``RACECRAFT_TRACKS_DIR`` before it needs them
+(:func:`tracks_sync`), so a worker that shares no disk with the web trains, evaluates and
+validates on a track uploaded through the web. A local copy is kept while its ``.sha256``
+sidecar matches the row (cached by content); a track imported again with ``--overwrite`` is
+written anew everywhere. Built-in tracks ship with the code and have no row.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+from pathlib import Path
+
+from django.conf import settings
+from django.db import transaction
+
+from racing.tracks import BUILTIN_DIR, TRACK_ID_RE
+from training.errors import ServiceError
+from training.models import TrackFile
+from training.services.checks import track_catalog
+
+log = logging.getLogger(__name__)
+
+
+def _sidecar(folder: Path, track_id: str) -> Path:
+    return folder / f"{track_id}.sha256"
+
+
+def _local_sha(folder: Path, track_id: str) -> str | None:
+    if not (folder / f"{track_id}.npy").is_file():
+        return None
+    try:
+        return _sidecar(folder, track_id).read_text().strip()
+    except OSError:
+        return None
+
+
+def trackfile_save(*, track_id: str, name: str, data: bytes, user=None) -> TrackFile:
+    """Record a validated track file (the ``.npy`` as the catalogue stores it); a track id
+    recorded already is replaced (``import_track --overwrite``)."""
+    with transaction.atomic():
+        row, _ = TrackFile.objects.update_or_create(
+            track_id=track_id,
+            defaults={"name": name[:200], "data": data, "created_by": user,
+                      "sha256": hashlib.sha256(data).hexdigest()},
+        )  # fmt: skip
+    return row
+
+
+def track_recorded(track_id: str) -> bool:
+    """Whether ``track_id`` is a track every machine can have: built in, or recorded."""
+    if (BUILTIN_DIR / f"{track_id}.npy").is_file():
+        return True
+    return TrackFile.objects.filter(track_id=track_id).exists()
+
+
+def tracks_sync(folder: str | Path | None = None) -> list[str]:
+    """Write every recorded track that this machine's ``folder`` (``RACECRAFT_TRACKS_DIR``)
+    lacks, or holds in another version, from the database; returns the ids written. Each file
+    goes in whole (written aside, then renamed; the sidecar last), so a reader sees the old
+    version or the new one, never half a file."""
+    dest = Path(folder or settings.RACECRAFT_TRACKS_DIR)
+    written = []
+    for track_id, sha, name in TrackFile.objects.values_list("track_id", "sha256", "name"):
+        if not TRACK_ID_RE.match(track_id) or _local_sha(dest, track_id) == sha:
+            continue
+        data = bytes(TrackFile.objects.values_list("data", flat=True).get(track_id=track_id))
+        if hashlib.sha256(data).hexdigest() != sha:
+            log.error("track %s: the recorded file does not match its hash; not written", track_id)
+            continue
+        dest.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix=".sync-", dir=dest) as scratch:
+            aside = Path(scratch)
+            (aside / "name.json").write_text(json.dumps({"name": name or track_id}))
+            (aside / "track.npy").write_bytes(data)
+            (aside / "sha256").write_text(sha)
+            os.replace(aside / "name.json", dest / f"{track_id}.json")
+            os.replace(aside / "track.npy", dest / f"{track_id}.npy")
+            os.replace(aside / "sha256", _sidecar(dest, track_id))
+        written.append(track_id)
+    return written
+
+
+def tracks_check_recorded(track_ids: list[str]) -> None:
+    """Refuse a job on a track no machine can have (gone from the catalogue since). A file put
+    into this machine's folder by hand, never recorded, still counts here."""
+    local = None
+    for track_id in track_ids:
+        if track_recorded(track_id):
+            continue
+        if local is None:
+            local = set(track_catalog().ids())
+        if track_id not in local:
+            raise ServiceError(
+                f"the track {track_id!r} is no longer in the catalogue: import it again, or "
+                "clone the model onto another track"
+            )
