@@ -41,7 +41,7 @@ from training.errors import RewardRejected, ServiceError
 from training.sandbox import RewardError, check_source
 from training.sandbox.static import SOURCE_TOO_LONG, source_too_long
 from training.services.checks import check_reward, check_track
-from training.services.trackfiles import tracks_sync
+from training.services.trackfiles import tracks_sync_for
 
 log = logging.getLogger(__name__)
 VALIDATION_QUEUE_DOWN = (
@@ -298,7 +298,7 @@ def reward_validation_run(
 ) -> dict[str, Any]:
     """In the worker: validate and answer ``{ok, errors, rewards}`` (JSON-able); a pass is
     remembered for ``user_id`` (:func:`reward_validation_passed`)."""
-    tracks_sync()  # this worker may share no disk with the web that took a track upload
+    tracks_sync_for([track_id])  # this worker may share no disk with the web that took the upload
     try:
         result = check_reward(source, track_id, direction)
     except RewardRejected as exc:

@@ -85,6 +85,14 @@ def tracks_sync(folder: str | Path | None = None) -> list[str]:
     return written
 
 
+def tracks_sync_for(track_ids: list[str]) -> list[str]:
+    """:func:`tracks_sync` when any of ``track_ids`` is an imported track; built-in tracks ship
+    with the code, so a job on them asks the database nothing."""
+    if all((BUILTIN_DIR / f"{t}.npy").is_file() for t in track_ids):
+        return []
+    return tracks_sync()
+
+
 def tracks_check_recorded(track_ids: list[str]) -> None:
     """Refuse a job on a track no machine can have (gone from the catalogue since). A file put
     into this machine's folder by hand, never recorded, still counts here."""
