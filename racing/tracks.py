@@ -7,6 +7,7 @@ Built-in tracks live in ``racing/tracks/`` as DeepRacer-format ``.npy`` files wi
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 from dataclasses import dataclass
@@ -40,6 +41,11 @@ class TrackInfo:
     closed: bool
     source: str
     description: str = ""
+
+
+@lru_cache(maxsize=256)
+def _file_sha256(path: str, mtime_ns: int) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 @lru_cache(maxsize=64)
@@ -95,6 +101,14 @@ class TrackCatalog:
             raise UnknownTrackError(track_id)
         path, _, meta = entry
         return _load_cached(str(path), path.stat().st_mtime_ns, meta.get("name", track_id))
+
+    def sha256(self, track_id: str) -> str:
+        """The SHA-256 of the track's file (hex): what identifies its content on any machine."""
+        entry = self._entries().get(track_id)
+        if entry is None:
+            raise UnknownTrackError(track_id)
+        path = entry[0]
+        return _file_sha256(str(path), path.stat().st_mtime_ns)
 
     def info(self, track_id: str) -> TrackInfo:
         entry = self._entries().get(track_id)

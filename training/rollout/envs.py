@@ -20,6 +20,7 @@ import numpy as np
 from racing.env import RacingEnv
 from racing.rules import STATUS_LABELS, RaceRules, Status
 from racing.simtrace import TraceRow
+from racing.track import TrackError
 from racing.tracks import TrackCatalog
 
 FRAME_INTERVAL_S = 1 / 15
@@ -48,10 +49,15 @@ class EnvSpec:
     race: dict = field(default_factory=dict)
     """:meth:`racing.race.RaceConfig.to_dict` of the race (boxes, bots); empty = time trial."""
     tracks: tuple[tuple[str, str], ...] = ()
+    track_hashes: tuple[tuple[str, str], ...] = ()
+    """``(track id, SHA-256 of its file)`` of the imported tracks the run drives: what identifies
+    a track's content on every machine (``track_dirs`` is only where this machine keeps them);
+    an env whose local copy differs is not built (:meth:`make`)."""
 
     def to_json(self) -> dict:
         data = asdict(self)
         data["track_dirs"] = list(self.track_dirs)
+        data["track_hashes"] = [list(pair) for pair in self.track_hashes]
         data["sensors"] = list(self.sensors)
         data["tracks"] = [list(pair) for pair in self.tracks]
         return data
@@ -62,6 +68,7 @@ class EnvSpec:
         data["track_dirs"] = tuple(data.get("track_dirs", ()))
         data["sensors"] = tuple(data.get("sensors", ("FRONT_FACING_CAMERA",)))
         data["tracks"] = tuple((str(t), str(d)) for t, d in data.get("tracks", ()))
+        data["track_hashes"] = tuple((str(t), str(h)) for t, h in data.get("track_hashes", ()))
         return cls(**data)
 
     def track_list(self) -> tuple[tuple[str, str], ...]:
@@ -79,8 +86,17 @@ class EnvSpec:
     def make(
         self, reward_function: Callable[[dict], float] | None = None, **overrides
     ) -> RacingEnv:
-        """A new env; ``overrides`` replace keyword arguments (e.g. ``start``, ``rules``)."""
-        track = TrackCatalog(list(self.track_dirs)).load(self.track)
+        """A new env; ``overrides`` replace keyword arguments (e.g. ``start``, ``rules``).
+        Raises :class:`~racing.track.TrackError` when this machine's copy of an imported track
+        is not the content the run drives (``track_hashes``)."""
+        catalog = TrackCatalog(list(self.track_dirs))
+        track = catalog.load(self.track)
+        expected = dict(self.track_hashes).get(self.track)
+        if expected is not None and catalog.sha256(self.track) != expected:
+            raise TrackError(
+                f"this machine's copy of the track {self.track!r} is not the one this run "
+                "drives (imported again since?): start the job again"
+            )
         kwargs: dict[str, Any] = {
             "direction": self.direction,
             "action_space": self.action_space,

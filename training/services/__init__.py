@@ -63,7 +63,7 @@ from training.services.racing import (
     sensor_advice,
 )
 from training.services.records import evaluation_record_logs, model_mark_checkpoint
-from training.services.trackfiles import tracks_check_recorded, tracks_sync
+from training.services.trackfiles import track_hashes, tracks_check_recorded, tracks_sync
 from training.services.tracks import (
     TrackCheck,
     default_track_id,
@@ -116,6 +116,7 @@ __all__ = [
     "track_add",
     "track_catalog",
     "track_check",
+    "track_hashes",
     "track_import",
     "tracks_check_recorded",
     "tracks_sync",

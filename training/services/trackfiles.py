@@ -93,6 +93,14 @@ def tracks_sync_for(track_ids: list[str]) -> list[str]:
     return tracks_sync()
 
 
+def track_hashes(track_ids: list[str]) -> tuple[tuple[str, str], ...]:
+    """``(track id, SHA-256)`` of those of ``track_ids`` that are recorded (imported): what a
+    job's env spec carries so that every machine checks it drives the same content."""
+    rows = dict(TrackFile.objects.filter(track_id__in=set(track_ids))
+                .values_list("track_id", "sha256"))  # fmt: skip
+    return tuple((t, rows[t]) for t in dict.fromkeys(track_ids) if t in rows)
+
+
 def tracks_check_recorded(track_ids: list[str]) -> None:
     """Refuse a job on a track no machine can have (gone from the catalogue since). A file put
     into this machine's folder by hand, never recorded, still counts here."""

@@ -19,7 +19,13 @@ from training.rl.simulation import launch_local, serve_simulation
 from training.rollout.backends import LocalRollouts, RolloutBackend, StreamRollouts
 from training.rollout.envs import EnvSpec
 from training.sandbox import RewardFunctionError
-from training.services import job_fail, job_heartbeat, job_stop_requested, tracks_sync
+from training.services import (
+    job_fail,
+    job_heartbeat,
+    job_stop_requested,
+    track_hashes,
+    tracks_sync,
+)
 from training.services.racing import race_config
 from training.storage import StoreError
 
@@ -94,6 +100,8 @@ def env_spec(
     if race is None:
         race = race_config(model.race_type, model.race_config)
     own = track_id is None and direction is None
+    tracks = tuple(model.training_tracks) if own and model.extra_tracks else ()
+    driven = [track_id or model.track_id, *(t for t, _ in tracks)]
     return EnvSpec(
         track=track_id or model.track_id,
         track_dirs=(str(settings.RACECRAFT_TRACKS_DIR),),
@@ -101,7 +109,8 @@ def env_spec(
         action_space=model.action_space,
         sensors=tuple(model.sensors),
         race=race.to_dict() if race.race_type is not RaceType.TIME_TRIAL else {},
-        tracks=tuple(model.training_tracks) if own and model.extra_tracks else (),
+        tracks=tracks,
+        track_hashes=track_hashes(driven),
     )
 
 

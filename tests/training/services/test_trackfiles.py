@@ -9,17 +9,19 @@ import hashlib
 import importlib
 import io
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from django.apps import apps
 
-from racing.track import Track
+from racing.track import Track, TrackError
 from racing.tracks import TrackCatalog
 from tests.training.services.factory import create
 from training import services
 from training.errors import ServiceError
 from training.models import TrackFile
+from training.rollout.envs import EnvSpec
 from training.worker import common
 
 pytestmark = pytest.mark.django_db
@@ -92,11 +94,24 @@ def test_a_job_sees_the_track_on_a_worker_that_shares_no_disk(alice, web, tmp_pa
     settings.RACECRAFT_TRACKS_DIR = tmp_path / "worker-tracks"
     spec = common.env_spec(model)
     assert spec.track_dirs == (str(tmp_path / "worker-tracks"),)
-    env = spec.make(None)
+    sha = TrackFile.objects.get(track_id="my_oval").sha256
+    assert spec.track_hashes == (("my_oval", sha),)  # the content, named on every machine
+    assert common.env_spec(create(alice, name="m2")).track_hashes == ()  # built in: no row
+    env = EnvSpec.from_json(json.loads(json.dumps(spec.to_json()))).make(None)
     try:
         assert env.track.track_id == "my_oval"
     finally:
         env.close()
+
+
+def test_an_env_is_not_built_on_another_version_of_its_track(alice, web, tmp_path, settings):
+    services.track_import(user=alice, data=_npy(), track_id="my_oval")
+    spec = common.env_spec(create(alice, track_id="my_oval"))
+    stale = tmp_path / "stale-worker"  # a machine that kept an older copy
+    stale.mkdir()
+    (stale / "my_oval.npy").write_bytes(_npy(scale=1.1))
+    with pytest.raises(TrackError, match="copy of the track 'my_oval' is not the one"):
+        replace(spec, track_dirs=(str(stale),)).make(None)
 
 
 def test_a_remote_simulation_worker_reads_its_own_folder(alice, web, tmp_path, settings,
