@@ -18,10 +18,13 @@ from training.models import RacingModel
 from training.services import ServiceError, background, downloads
 
 GZIP, ONNX = "application/gzip", "application/octet-stream"
+#: The car and virtual-model archives are named as DeepRacer-on-AWS names its downloads
+#: (``physicalmodel-<name>.tar.gz``, ``virtualmodel-<name>.tar.gz``: its
+#: source/libs/lambda/src/api/handlers/getAssetUrl.ts).
 ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str, str]] = {
-    "car": (downloads.car_model_archive, "{name}-car.tar.gz", GZIP),
+    "car": (downloads.car_model_archive, "physicalmodel-{name}.tar.gz", GZIP),
     "onnx": (downloads.onnx_policy, "{name}-policy.onnx", ONNX),
-    "virtual": (downloads.virtual_model_archive, "{name}-virtualmodel.tar.gz", GZIP),
+    "virtual": (downloads.virtual_model_archive, "virtualmodel-{name}.tar.gz", GZIP),
     "logs": (downloads.logs_archive, "{name}-logs.tar.gz", GZIP),
 }
 

@@ -65,7 +65,7 @@ def test_a_car_export_and_an_import_run_on_the_worker(browser, daphne, celery_wo
     expect(page.locator("#download-ready")).to_be_visible(timeout=WORKER_MS)
     with page.expect_download() as info:
         page.click("#download-ready")
-    assert info.value.suggested_filename == "alice-oval-car.tar.gz"
+    assert info.value.suggested_filename == "physicalmodel-alice-oval.tar.gz"
     with tarfile.open(fileobj=io.BytesIO(Path(info.value.path()).read_bytes())) as tar:
         assert {"agent/model.pb", "model_metadata.json"} <= set(tar.getnames())
 

@@ -163,7 +163,7 @@ def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, we
     with page.expect_download() as info:
         page.click("#download-car")
     download = info.value
-    assert download.suggested_filename == "oval-racer-car.tar.gz"
+    assert download.suggested_filename == "physicalmodel-oval-racer.tar.gz"
     with tarfile.open(fileobj=io.BytesIO(Path(download.path()).read_bytes())) as tar:
         assert {"agent/model.pb", "model_metadata.json"} <= set(tar.getnames())
 

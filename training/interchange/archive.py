@@ -348,7 +348,7 @@ def virtual_model(files: Mapping[str, bytes]) -> ImportedModel:
         if name not in used
         and name.endswith(EXTRA_SUFFIXES)
         and not name.startswith("model/")
-        and name != "deepracer_checkpoints.json"
+        and name not in ("deepracer_checkpoints.json", "model_metadata.json")  # DRoA's copy
     }
     return ImportedModel(
         metadata=metadata,

@@ -145,7 +145,8 @@ def _choose_source(files: Mapping[str, bytes]) -> str:
     if not graphs and not checkpoints:
         raise ArchiveError(
             "no DeepRacer model to import: neither model/model_<iteration>.pb nor "
-            "model/<iteration>_Step-<steps>.ckpt.index"
+            "model/<iteration>_Step-<steps>.ckpt.index (with its .ckpt.data-* files, which "
+            "model/.coach_checkpoint names)"
         )
     for index, role in (
         ("model/deepracer_checkpoints.json", "best_checkpoint"),
@@ -223,10 +224,23 @@ def import_deepracer_upload(
     upload: bytes | BinaryIO, limits: ImportLimits | None = None
 ) -> ImportedDeepRacerModel:
     """Either kind of DeepRacer upload, told apart by its files: a model folder has
-    ``reward_function.py``; anything else is read as a car model. Raises :class:`ArchiveError`.
+    ``reward_function.py`` (or another file only a model folder has, :func:`_is_model_folder`);
+    anything else is read as a car model. Raises :class:`ArchiveError`.
     """
     files = read_archive(upload, limits)
-    return _model_folder(files) if "reward_function.py" in files else _car_model(files)
+    return _model_folder(files) if _is_model_folder(files) else _car_model(files)
+
+
+_FOLDER_FILES = ("reward_function.py", "hyperparameters.json", "training_params.yaml")
+
+
+def _is_model_folder(files: Mapping[str, bytes]) -> bool:
+    """A model folder, not the car's archive: it has a reward function, hyperparameters,
+    training parameters or ``model/.coach_checkpoint`` (one with any of these but not the
+    reward function is refused for that, not imported as a car model)."""
+    return "model/.coach_checkpoint" in files or any(
+        name.rsplit("/", 1)[-1] in _FOLDER_FILES for name in files
+    )
 
 
 DEEPRACER_SUFFIXES = (".pb", ".ckpt.index", ".index")
@@ -242,6 +256,17 @@ def import_model_upload(
     try:
         return virtual_model(files)
     except ArchiveError as exc:
-        if not any(name.endswith(DEEPRACER_SUFFIXES) for name in files):
+        if not any(_is_deepracer_file(name) for name in files):
             raise exc from None
-    return _model_folder(files) if "reward_function.py" in files else _car_model(files)
+    return _model_folder(files) if _is_model_folder(files) else _car_model(files)
+
+
+def _is_deepracer_file(name: str) -> bool:
+    """A frozen graph or a TensorFlow checkpoint's file, ``.coach_checkpoint`` included (a
+    DeepRacer-on-AWS model folder whose checkpoint files are missing is still read as one,
+    so the error names them)."""
+    return (
+        name.endswith(DEEPRACER_SUFFIXES)
+        or ".ckpt." in name
+        or name.rsplit("/", 1)[-1] == ".coach_checkpoint"
+    )

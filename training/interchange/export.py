@@ -66,6 +66,16 @@ VIRTUAL_MODEL_REQUIRED = (
 )
 VIRTUAL_MODEL_EXCLUDED = ("training-simtrace/", "evaluation/", "videos/", "export/", "output/")
 """Folders left out of the virtual model (DeepRacer leaves out sim-traces, videos, output)."""
+DROA_COPIES = {
+    "model_metadata.json": "model/model_metadata.json",
+    "training_params.yaml": "ip/training_params.yaml",
+}
+"""Files DeepRacer-on-AWS's import reads at the top of the folder (its
+source/libs/lambda/src/import-workflow/utils/ImportHelper.ts: ``model_metadata.json``,
+``reward_function.py``, ``training_params.yaml``, ``ip/hyperparameters.json``), as copies of
+ours: the top name → the file it copies. Its own export lays the model out so (the model's
+folder with ``sagemaker-artifacts/`` taken out: source/libs/lambda/src/async/assetpackaging.ts).
+"""
 
 
 # --- ONNX ------------------------------------------------------------------------------------
@@ -209,15 +219,18 @@ def checkpoints_index(best: str, last: str) -> bytes:
 
 
 def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
-    """``virtualmodel.tar.gz``: a model folder that :mod:`training.interchange.archive` imports
-    back.
+    """``virtualmodel-<name>.tar.gz``: a model folder that :mod:`training.interchange.archive`
+    imports back, laid out as DeepRacer-on-AWS exports a virtual model (names relative to the
+    folder, no top folder; ``model_metadata.json`` and ``training_params.yaml`` also at the top,
+    :data:`DROA_COPIES`).
 
     ``files`` maps names inside the model folder (``model/model_metadata.json``,
-    ``ip/hyperparameters.json``, ``reward_function.py``, ``model/<checkpoint>.zip``, optional
-    ``model/deepracer_checkpoints.json``, ``metrics/*.json``...) to bytes. Sim-traces,
-    evaluations, videos and exports are left out. Without a checkpoints index, one is written:
-    ``best``/``last`` when those checkpoints exist, else the only checkpoint for both.
-    Raises :class:`ExportError` when a required file or the checkpoint is missing.
+    ``ip/hyperparameters.json``, ``ip/training_params.yaml``, ``reward_function.py``,
+    ``model/<checkpoint>.zip``, optional ``model/deepracer_checkpoints.json``,
+    ``metrics/*.json``...) to bytes. Sim-traces, evaluations, videos and exports are left out.
+    Without a checkpoints index, one is written: ``best``/``last`` when those checkpoints exist,
+    else the only checkpoint for both. Raises :class:`ExportError` when a required file or the
+    checkpoint is missing.
     """
     kept = {n: bytes(d) for n, d in files.items() if not n.startswith(VIRTUAL_MODEL_EXCLUDED)}
     missing = [name for name in VIRTUAL_MODEL_REQUIRED if name not in kept]
@@ -237,4 +250,7 @@ def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
             best = "best" if "best" in checkpoints else checkpoints[-1]
             last = "last" if "last" in checkpoints else checkpoints[-1]
         kept[CHECKPOINTS_INDEX] = checkpoints_index(best, last)
+    for top, source in DROA_COPIES.items():
+        if source in kept:
+            kept[top] = kept[source]
     return deterministic_tar_gz(kept)

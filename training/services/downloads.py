@@ -15,7 +15,12 @@ from training.interchange.export import (
 from training.interchange.layout import evaluation_stamp
 from training.models import EvaluationJob, RacingModel
 from training.rl.checkpoints import CheckpointError, load_checkpoint
-from training.services.model_files import model_metadata, store_failure
+from training.services.model_files import (
+    TRAINING_PARAMS,
+    model_metadata,
+    store_failure,
+    training_params,
+)
 from training.storage import ObjectNotFound, StoreError, StoreUnavailable
 from training.store import get_store, keys_for
 
@@ -26,7 +31,7 @@ def _need_checkpoint(model: RacingModel) -> None:
 
 
 def car_model_archive(model: RacingModel) -> bytes:
-    """``<name>-car.tar.gz`` for the physical car: ``agent/model.pb`` (a frozen TensorFlow
+    """``physicalmodel-<name>.tar.gz`` for the physical car: ``agent/model.pb`` (a frozen TensorFlow
     graph with DeepRacer's names) and ``model_metadata.json`` at its root. The archive kept in
     the store when there is one, else built now (:func:`car_archive_build`)."""
     _need_checkpoint(model)
@@ -118,9 +123,14 @@ def _in_logs(name: str) -> bool:
 
 
 def virtual_model_archive(model: RacingModel) -> bytes:
-    """The whole model (re-importable): metadata, hyperparameters, reward, checkpoints."""
+    """``virtualmodel-<name>.tar.gz``, the whole model (re-importable here, and laid out as
+    DeepRacer-on-AWS exports one): metadata, hyperparameters, training parameters, reward,
+    checkpoints (:func:`training.interchange.export.build_virtual_model_archive`). A model
+    stored before its training parameters were gets them written now."""
     _need_checkpoint(model)
-    return build_virtual_model_archive(_collect(model, _in_virtual_model, "files"))
+    files = _collect(model, _in_virtual_model, "files")
+    files.setdefault(TRAINING_PARAMS, training_params(model).encode())
+    return build_virtual_model_archive(files)
 
 
 def logs_archive(model: RacingModel) -> bytes:

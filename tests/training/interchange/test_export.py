@@ -174,6 +174,7 @@ def test_virtual_model_archive(ppo_discrete) -> None:
         "model/best.zip",
         "model/deepracer_checkpoints.json",
         "model/model_metadata.json",
+        "model_metadata.json",  # where DeepRacer-on-AWS's import reads it (test_droa_export.py)
         "reward_function.py",
     ]
     index = json.loads(read_member(archive, "model/deepracer_checkpoints.json"))
