@@ -93,3 +93,27 @@ def camera_frames() -> np.ndarray:
             obs, _ = env.reset()
     env.close()
     return np.stack(frames)
+
+
+@pytest.fixture
+def ida_model(ppo_discrete, store_dir, db):
+    """Makes Ida's model on the oval (``model_create`` keywords override) with
+    ``ppo_discrete``'s checkpoint stored as its best, as a finished training leaves it."""
+    from django.contrib.auth import get_user_model
+
+    from training import services
+    from training.interchange.export import checkpoint_bytes
+    from training.store import get_store, keys_for
+
+    def make(**overrides):
+        owner = get_user_model().objects.create_user("ida", password="x-long-pass-1")
+        kwargs = dict(owner=owner, name="oval", track_id="racecraft_oval",
+                      action_space=ppo_discrete.metadata.actions.to_metadata(),
+                      reward_function="def reward_function(params):\n    return 1.0\n",
+                      seed=4242, validate_reward=False)  # fmt: skip
+        model = services.model_create(**{**kwargs, **overrides})
+        get_store().put_bytes(keys_for(model.pk).best, checkpoint_bytes(ppo_discrete.model))
+        services.model_mark_checkpoint(model=model)
+        return model
+
+    return make

@@ -132,13 +132,12 @@ class StreamedExperience:
         self._episodes: list[tuple[float, float]] = []
         self._checked = 0.0
         self._hooks: Hooks | None = None
-        self._learner: Learner | None = None
         self._relay_stop = threading.Event()
         self._relay = threading.Thread(target=self._relay_frames, name="frames", daemon=True)
 
     # ---------------------------------------------------------------- the protocol
     def start(self, learner: Learner) -> None:
-        self._hooks, self._learner = learner.hooks, learner
+        self._hooks = learner.hooks
         self._publish(learner, 0)
         for slot in self.slots:
             self._launch(slot)

@@ -63,7 +63,12 @@ from training.services.racing import (
     sensor_advice,
 )
 from training.services.records import evaluation_record_logs, model_mark_checkpoint
-from training.services.trackfiles import track_hashes, tracks_check_recorded, tracks_sync
+from training.services.trackfiles import (
+    track_hashes,
+    tracks_check_recorded,
+    tracks_sync,
+    tracks_sync_for,
+)
 from training.services.tracks import (
     TrackCheck,
     default_track_id,
@@ -120,5 +125,6 @@ __all__ = [
     "track_import",
     "tracks_check_recorded",
     "tracks_sync",
+    "tracks_sync_for",
     "training_start",
 ]

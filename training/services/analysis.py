@@ -35,7 +35,7 @@ from training.errors import ServiceError
 from training.models import EpisodeMetric, EvaluationJob, JobStatus, RacingModel
 from training.sandbox import SandboxLimits, check_source, evaluate_reward
 from training.services.checks import track_catalog
-from training.services.trackfiles import tracks_sync
+from training.services.trackfiles import tracks_sync_for
 from training.storage import ObjectNotFound, ObjectStore, StoreError
 from training.store import get_store, keys_for
 
@@ -329,8 +329,8 @@ def replay_start(*, model: RacingModel, iteration: int, episode: int, source: st
 def replay_run(model_id: int, iteration: int, episode: int, source: str) -> dict:
     """The replay itself (a Celery worker runs it): params rebuilt per step, the reward run
     in the sandbox, the new rewards next to the recorded ones."""
-    tracks_sync()  # this worker may share no disk with the web that took a track upload
     model = RacingModel.objects.get(pk=model_id)
+    tracks_sync_for([model.track_id])  # this worker may share no disk with the web
     try:
         rows = episode_rows(get_store().get_bytes(keys_for(model_id).simtrace(iteration)), episode)
         params = step_params(rows, _track(model))

@@ -24,7 +24,7 @@ from training.services import (
     job_heartbeat,
     job_stop_requested,
     track_hashes,
-    tracks_sync,
+    tracks_sync_for,
 )
 from training.services.racing import race_config
 from training.storage import StoreError
@@ -94,14 +94,14 @@ def env_spec(
 ) -> EnvSpec:
     """The simulator a job of ``model`` drives: its own tracks (all of them for a model that
     trains on several) and race, or the track and race given. Imported tracks are written into
-    this machine's folder first (:func:`~training.services.tracks_sync`): a worker may share no
+    this machine's folder first (:func:`~training.services.tracks_sync_for`): a worker may share no
     disk with the web that took the upload."""
-    tracks_sync()
     if race is None:
         race = race_config(model.race_type, model.race_config)
     own = track_id is None and direction is None
     tracks = tuple(model.training_tracks) if own and model.extra_tracks else ()
     driven = [track_id or model.track_id, *(t for t, _ in tracks)]
+    tracks_sync_for(driven)
     return EnvSpec(
         track=track_id or model.track_id,
         track_dirs=(str(settings.RACECRAFT_TRACKS_DIR),),
@@ -136,11 +136,13 @@ def simulate_here(**kwargs) -> str:
     """A streamed simulation worker for a trainer on another machine (the ``simulation``
     queue's task): the imported tracks from the database into this machine's folder, and the
     trainer's specs pointed at that folder (never at a path of the trainer's machine)."""
-    tracks_sync()
     here = [str(settings.RACECRAFT_TRACKS_DIR)]
+    driven: list[str] = []
     for key in ("spec", "eval_spec"):
         if isinstance(kwargs.get(key), dict):
             kwargs[key] = {**kwargs[key], "track_dirs": here}
+            driven += [str(track) for track, _ in EnvSpec.from_json(kwargs[key]).track_list()]
+    tracks_sync_for(driven)
     return serve_simulation(**kwargs)
 
 

@@ -9,7 +9,6 @@ import io
 import tarfile
 
 import pytest
-from django.contrib.auth import get_user_model
 from django.test import Client
 
 from training import services
@@ -79,18 +78,8 @@ def test_the_virtual_model_has_what_droas_import_reads(ppo_discrete) -> None:
 
 
 @pytest.fixture
-def trained(ppo_discrete, tmp_path, settings, db) -> RacingModel:
-    settings.STORE_DIR = tmp_path / "store"
-    owner = get_user_model().objects.create_user("ida", password="x-long-pass-1")
-    model = services.model_create(
-        owner=owner, name="oval", track_id="racecraft_oval", direction="cw",
-        action_space=ppo_discrete.metadata.actions.to_metadata(), reward_function=REWARD,
-        seed=4242, validate_reward=False,
-    )  # fmt: skip
-    get_store().put_bytes(keys_for(model.pk).best, checkpoint_bytes(ppo_discrete.model))
-    RacingModel.objects.filter(pk=model.pk).update(has_checkpoint=True)
-    model.refresh_from_db()
-    return model
+def trained(ida_model) -> RacingModel:
+    return ida_model(direction="cw")
 
 
 @pytest.fixture

@@ -17,11 +17,10 @@ from django.test import Client
 
 from tests.conftest import _delete_prefixed
 from tests.support import celery_worker_process
-from training.interchange.export import checkpoint_bytes
 from training.models import RacingModel
-from training.services import ServiceError, background, model_create
+from training.services import ServiceError, background
 from training.services.downloads import virtual_model_archive
-from training.store import get_store, keys_for
+from training.store import get_store
 
 REWARD = "def reward_function(params):\n    return 1.0\n"
 POLL_TIMEOUT_S = 300.0
@@ -36,17 +35,8 @@ def _no_stale_tasks() -> None:
 
 
 @pytest.fixture
-def trained(ppo_discrete, store_dir) -> RacingModel:
-    owner = get_user_model().objects.create_user("ida", password="x-long-pass-1")
-    model = model_create(
-        owner=owner, name="oval", track_id="racecraft_oval",
-        action_space=ppo_discrete.metadata.actions.to_metadata(), reward_function=REWARD,
-        seed=4242, validate_reward=False,
-    )  # fmt: skip
-    get_store().put_bytes(keys_for(model.pk).best, checkpoint_bytes(ppo_discrete.model))
-    RacingModel.objects.filter(pk=model.pk).update(has_checkpoint=True)
-    model.refresh_from_db()
-    return model
+def trained(ida_model) -> RacingModel:
+    return ida_model()
 
 
 @pytest.fixture
