@@ -75,8 +75,15 @@ def objects_corners(objects: Sequence[RaceObject]) -> np.ndarray:
     return world
 
 
+def object_colour(obj: RaceObject) -> RGB:
+    """A racer's own colour, else the colour of a bot or of a box."""
+    if obj.colour is not None:
+        return obj.colour
+    return BOT_RGB if obj.kind == KIND_BOT else BOX_RGB
+
+
 def objects_colours(objects: Sequence[RaceObject]) -> list[RGB]:
-    return [BOT_RGB if o.kind == KIND_BOT else BOX_RGB for o in objects]
+    return [object_colour(o) for o in objects]
 
 
 Point3 = tuple[float, float, float]

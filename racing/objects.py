@@ -38,12 +38,15 @@ END_MARGIN_M = 1.0
 """Objects placed by the simulator stop this far before the end of the lap, metres."""
 KIND_BOX = "box"
 KIND_BOT = "bot"
+KIND_RACER = "racer"
+"""Another racer's car in a head-to-head race (:mod:`racing.headtohead`): it moves like a bot."""
 
 
 @dataclass(frozen=True, slots=True)
 class RaceObject:
-    """A box or a bot car: centre ``x, y`` (m), ``heading`` (rad, counter-clockwise from +x),
-    ``speed`` (m/s; 0 for a box), footprint ``length`` × ``width`` and ``height`` (m)."""
+    """A box, a bot car or another racer: centre ``x, y`` (m), ``heading`` (rad,
+    counter-clockwise from +x), ``speed`` (m/s; 0 for a box), footprint ``length`` × ``width``
+    and ``height`` (m); ``colour`` (RGB) paints a racer in its own colour."""
 
     x: float
     y: float
@@ -53,6 +56,7 @@ class RaceObject:
     width: float = BOX_WIDTH_M
     height: float = BOX_HEIGHT_M
     kind: str = KIND_BOX
+    colour: tuple[int, int, int] | None = None
 
 
 class Lanes:
@@ -166,14 +170,22 @@ class BotFleet:
     """
 
     def __init__(
-        self, track: Track, lanes: Lanes, config: RaceConfig, rng: np.random.Generator
+        self,
+        track: Track,
+        lanes: Lanes,
+        config: RaceConfig,
+        rng: np.random.Generator,
+        *,
+        keep_clear_m: float = 0.0,
     ) -> None:
+        """``keep_clear_m``: no bot starts in the last metres of the lap (a race's grid)."""
         self.track = track
         self.lanes = lanes
         self.config = config
         self.rng = rng
         random = rng if config.randomize_bots else None
-        dists = spread(track.length, config.number_of_bots, config.min_bot_gap_m, random)
+        length = track.length - keep_clear_m
+        dists = spread(length, config.number_of_bots, config.min_bot_gap_m, random)
         chosen = choose_lanes(len(dists), random)
         self.time_s = 0.0
         self.travelled_m = 0.0

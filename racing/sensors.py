@@ -24,7 +24,7 @@ import numpy as np
 from racing.car import Pose
 from racing.drawing import MAX_DRAW_DISTANCE_M, BoxSet, draw_boxes
 from racing.lidar import SENSOR_DISCRETIZED_LIDAR, SENSOR_LIDAR, SENSOR_SECTOR_LIDAR
-from racing.objects import KIND_BOT, RaceObject
+from racing.objects import KIND_BOX, RaceObject
 from racing.quiet_pybullet import pb
 from racing.texture import WALL_GRAY, WALL_RGB, GroundTexture, render_ground
 from racing.track import Track
@@ -260,7 +260,7 @@ class CameraSensor:
         frames = [cam.render(pose) for cam in self.cameras]
         if objects:
             if objects is not self._drawn[0]:  # static boxes: the same tuple all episode
-                if any(o.kind == KIND_BOT for o in objects):
+                if any(o.kind != KIND_BOX for o in objects):
                     objects = [o for o in objects if _maybe_in_view(pose, o)]  # moving: now
                 self._drawn = (objects, BoxSet.of(objects) if objects else None)
             boxes = self._drawn[1]

@@ -14,15 +14,14 @@ import numpy as np
 
 from racing.car import CHASSIS_CENTRE_X, Pose
 from racing.drawing import (
-    BOT_RGB,
-    BOX_RGB,
     BoxSet,
     box_corners,
     draw_boxes,
+    object_colour,
     objects_colours,
     objects_corners,
 )
-from racing.objects import KIND_BOT, RaceObject
+from racing.objects import RaceObject
 from racing.sensors import CameraMount, PinholeCamera, camera_frame
 from racing.texture import GroundTexture
 
@@ -76,19 +75,21 @@ class TopDownView:
         """The whole track from above with the objects and the car on it, RGB."""
         img = self.base.copy()
         for obj in objects:
-            self._draw_footprint(
-                img,
-                obj.x,
-                obj.y,
-                obj.heading,
-                obj.length,
-                obj.width,
-                BOT_RGB if obj.kind == KIND_BOT else BOX_RGB,
-            )
+            self.draw_object(img, obj)
+        self.draw_car(img, pose, CAR_RGB)
+        return img
+
+    def draw_object(self, img: np.ndarray, obj: RaceObject) -> None:
+        """A box, bot or racer's footprint in its colour."""
+        self._draw_footprint(
+            img, obj.x, obj.y, obj.heading, obj.length, obj.width, object_colour(obj)
+        )
+
+    def draw_car(self, img: np.ndarray, pose: Pose, rgb: tuple[int, int, int]) -> None:
+        """A car at ``pose`` drawn 1.6 times its size (so that it shows on a whole track)."""
         cx = pose.x + (CHASSIS_CENTRE_X + 0.02) * math.cos(pose.yaw)
         cy = pose.y + (CHASSIS_CENTRE_X + 0.02) * math.sin(pose.yaw)
-        self._draw_footprint(img, cx, cy, pose.yaw, CAR_LENGTH_M * 1.6, CAR_WIDTH_M * 1.6, CAR_RGB)
-        return img
+        self._draw_footprint(img, cx, cy, pose.yaw, CAR_LENGTH_M * 1.6, CAR_WIDTH_M * 1.6, rgb)
 
     def _draw_footprint(self, img, x, y, yaw, length, width, rgb) -> None:
         c, s = math.cos(yaw), math.sin(yaw)

@@ -172,7 +172,8 @@ def _metric(lap: LapRecord, start_s: float) -> dict:
 
 
 class VideoWriter:
-    """H.264 MP4 in memory: the chase view with the car's camera inset."""
+    """H.264 MP4 in memory at 15 frames/s: the chase view with the car's camera inset
+    (:meth:`add`), or any frames of the writer's size (:meth:`add_frame`)."""
 
     def __init__(self, width: int = 320, height: int = 240) -> None:
         import av
@@ -187,6 +188,7 @@ class VideoWriter:
         self._av = av
 
     def add(self, chase_rgb: np.ndarray, camera_gray: np.ndarray) -> None:
+        """A frame of the chase view with the car's camera inset at its top right."""
         frame = chase_rgb.copy()
         h, w = camera_gray.shape[:2]
         inset = cv2.resize(camera_gray, (int(w * PIP_SCALE * 1.5), int(h * PIP_SCALE * 1.5)))
@@ -195,7 +197,11 @@ class VideoWriter:
         cv2.rectangle(
             frame, (frame.shape[1] - 7 - iw, 5), (frame.shape[1] - 6, 6 + ih), (255, 255, 255), 1
         )
-        video_frame = self._av.VideoFrame.from_ndarray(frame, format="rgb24")
+        self.add_frame(frame)
+
+    def add_frame(self, rgb: np.ndarray) -> None:
+        """One ``(height, width, 3)`` RGB frame as it is."""
+        video_frame = self._av.VideoFrame.from_ndarray(rgb, format="rgb24")
         for packet in self.stream.encode(video_frame):
             self.container.mux(packet)
         self.frames += 1

@@ -54,6 +54,7 @@ from training.services.jobs import (
 from training.services.model_files import model_metadata
 from training.services.model_imports import model_import
 from training.services.models import model_clone, model_create, model_delete, model_update_reward
+from training.services.races import RacePlan, race_plan
 from training.services.racing import (
     RACE_DEFAULTS,
     SUPPORTED_RACE_TYPES,
@@ -82,6 +83,7 @@ __all__ = [
     "MIN_MINUTES",
     "ModelSpec",
     "RACE_DEFAULTS",
+    "RacePlan",
     "RewardRejected",
     "SUPPORTED_RACE_TYPES",
     "ServiceError",
@@ -116,6 +118,7 @@ __all__ = [
     "model_update_reward",
     "parse_object_positions",
     "race_config",
+    "race_plan",
     "race_settings",
     "sensor_advice",
     "track_add",

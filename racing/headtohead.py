@@ -1,0 +1,368 @@
+"""Head-to-head races: 2-4 racers' cars, each driven by its own policy, on one track.
+
+Each racer keeps its own sensors (camera, stereo, LIDAR) and action space, and sees the other
+racers as it sees bot cars: in its cameras and in its LIDAR. The event's bot cars (head-to-bot
+settings) drive among them. One clock runs for everyone at DeepRacer's 15 steps per simulated
+second.
+
+**Rules**, DeepRacer's head-to-bot rules for each car on its own (:mod:`racing.world`):
+
+- Running into another racer or a bot from behind is a crash for the car behind; the car in
+  front is not at fault and drives on (a bot that runs into a racer from behind stops the bots
+  for :meth:`RaceRules.bot_pause` seconds instead).
+- A crash, an off-track, reversing or being immobilized costs the car its penalty: it stands
+  still for that many seconds of the race clock while everyone else drives on, then goes on from
+  where it was (after a crash) or on the nearer lane at the point it left (after the others).
+  Resets are counted per car against ``rules.resets``; a car out of resets is out of the race.
+- A car that finishes its laps, retires (:meth:`HeadToHeadRace.retire`) or runs out of resets
+  leaves the track at once: it blocks no one.
+- The race ends when every car has finished or is out, or at ``time_limit_s`` of race clock.
+- Bots start on the lap ahead of the grid, never on it (:func:`grid_length_m`).
+
+**Start grid**: staggered, as DeepRacer's head-to-head races started: grid slot ``k`` is
+``k`` × :data:`GRID_SPACING_M` behind the start line, alternating inner and outer lane, pole in
+the inner lane. Each car's laps count from its own grid spot, so every car drives the same
+distance. :func:`grid_order` rotates the grid between rounds so that everyone gets the pole.
+
+**Determinism**: the same racers, actions and ``seed`` give the same race (the bots' lanes and
+the LIDAR noise come from generators seeded with it; each car has its own PyBullet world).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from racing.actions import ActionSpaceError, ActionSpec
+from racing.bodies import ObjectBodies
+from racing.car import REPORTED_POINT_AHEAD_M, CarSim, Pose
+from racing.lidar import LidarSensor
+from racing.objects import BotFleet, Lanes, RaceObject
+from racing.params import heading_deg
+from racing.race import LANE_INNER, LANE_OUTER, RaceConfig, RaceType
+from racing.racecar import (
+    GRID_SPACING_M,
+    MAX_RACERS,
+    MIN_RACERS,
+    RACER_COLOURS,
+    CarState,
+    RaceCar,
+    Racer,
+    grid_length_m,
+    grid_order,
+)
+from racing.rules import LapRecord, RaceRules, RaceTracker, Status
+from racing.sensors import CameraSensor, ground_for, validate_sensors
+from racing.simtrace import TraceRow
+from racing.track import Location, Track, TrackError
+
+__all__ = [
+    "GRID_SPACING_M",
+    "MAX_RACERS",
+    "MIN_RACERS",
+    "CarState",
+    "HeadToHeadRace",
+    "RaceCar",
+    "Racer",
+    "StepOutcome",
+    "grid_length_m",
+    "grid_order",
+]
+CAMERA_RESOLUTION_M = 0.005
+
+
+@dataclass(frozen=True)
+class StepOutcome:
+    """What one step of the race did to one car (``None`` for a car that did not drive)."""
+
+    status: Status
+    reset: bool
+    penalty_s: float
+    lap_finished: LapRecord | None
+    done: bool
+    trace: TraceRow
+
+
+class HeadToHeadRace:
+    """A race of 2-4 policy-driven cars (see the module docstring for the rules).
+
+    ``track`` is a loop already in its driving direction; ``race`` is a time trial or a
+    head-to-bot :class:`RaceConfig` (its bot cars join the race); ``rules`` gives the laps,
+    resets and penalties (``rules.time_limit_s`` is the race's time limit, required);
+    ``grid`` lists entry indices in grid order (default: entry order). Raises ``ValueError``
+    for anything a race cannot run with.
+
+    Drive it with :meth:`reset` (the first observations), then :meth:`step` with one action per
+    car until :attr:`over`. An observation is what the car's :class:`~racing.env.RacingEnv`
+    would give: the camera image, or a dict of camera and LIDAR; ``None`` for a car that does
+    not act this step (finished, out, or sitting out a penalty).
+    """
+
+    def __init__(
+        self,
+        track: Track,
+        racers: Sequence[Racer],
+        *,
+        rules: RaceRules,
+        race: RaceConfig | None = None,
+        seed: int = 0,
+        grid: Sequence[int] | None = None,
+        substeps: int = 4,
+    ) -> None:
+        if not MIN_RACERS <= len(racers) <= MAX_RACERS:
+            raise ValueError(f"a race has {MIN_RACERS} to {MAX_RACERS} racers, not {len(racers)}")
+        if not track.closed:
+            raise TrackError(f"track {track.name!r} is not a loop: head-to-head races need one")
+        race = race or RaceConfig()
+        if race.race_type is RaceType.OBJECT_AVOIDANCE:
+            raise ValueError("a head-to-head race has bot cars or nothing else on the track")
+        if rules.time_limit_s is None:
+            raise ValueError("a head-to-head race needs a time limit (rules.time_limit_s)")
+        grid = list(range(len(racers))) if grid is None else list(grid)
+        if sorted(grid) != list(range(len(racers))):
+            raise ValueError("grid must list every entry index once")
+        self.track = track
+        self.rules = rules
+        self.time_limit_s = float(rules.time_limit_s)
+        self.race = race
+        self.seed = seed
+        self.lanes = Lanes(track)
+        self.clock_s = 0.0
+        self.steps = 0
+        self.fleet: BotFleet | None = None
+        if race.has_bots:
+            self.fleet = BotFleet(track, self.lanes, race, np.random.default_rng(seed),
+                                  keep_clear_m=grid_length_m(len(racers)))  # fmt: skip
+        ground = ground_for(track, resolution=CAMERA_RESOLUTION_M, rgb=False)
+        car_rules = replace(rules, time_limit_s=None)  # the race's clock, not each car's
+        self.cars: list[RaceCar] = []
+        for index, racer in enumerate(racers):
+            sensors = validate_sensors(list(racer.sensors))
+            sim = CarSim(substeps=substeps)
+            self.cars.append(
+                RaceCar(
+                    index=index,
+                    racer=racer,
+                    colour=RACER_COLOURS[index],
+                    sim=sim,
+                    bodies=ObjectBodies(sim),
+                    camera=CameraSensor(ground, sensors[0]),
+                    lidar=LidarSensor(sensors[1]) if len(sensors) > 1 else None,
+                    actions=ActionSpec.parse(racer.action_space),
+                    tracker=RaceTracker(car_rules, track.length, closed=True),
+                    rng=np.random.default_rng([seed, index]),
+                    grid_slot=grid.index(index),
+                )
+            )
+
+    # ------------------------------------------------------------------ driving
+    @property
+    def bots(self) -> tuple[RaceObject, ...]:
+        return self.fleet.objects if self.fleet is not None else ()
+
+    @property
+    def over(self) -> bool:
+        """Every car finished or out, or the race clock ran out."""
+        return not any(car.on_track for car in self.cars)
+
+    def reset(self) -> list[object | None]:
+        """Put every car on its grid slot at rest; the first observation of each car."""
+        for car in self.cars:
+            slot = car.grid_slot
+            s = (-slot * GRID_SPACING_M) % self.track.length
+            lane = LANE_INNER if slot % 2 == 0 else LANE_OUTER
+            self._place(car, s, self.lanes.offset(s, lane))
+            car.tracker.start(car.s)
+        return self.observations()
+
+    def step(self, actions: Sequence[object | None]) -> list[StepOutcome | None]:
+        """One 1/15 s step of the race clock: every car on track and not sitting out a penalty
+        drives its action (the others' entries are ignored). A car whose action is outside its
+        action space is retired with the reason; the race goes on."""
+        if len(actions) != len(self.cars):
+            raise ValueError(f"one action per car: {len(self.cars)} expected")
+        dt = self.cars[0].sim.dt
+        decoded: dict[int, tuple[float, float]] = {}
+        chosen: dict[int, int | tuple[float, float]] = {}
+        for car in self.cars:
+            if not self._drives(car):
+                continue
+            try:
+                decoded[car.index] = car.actions.decode(actions[car.index])
+                chosen[car.index] = self._trace_action(car, actions[car.index])
+            except ActionSpaceError as exc:
+                self.retire(car.index, f"its policy chose an impossible action: {exc}")
+        driving = [car for car in self.cars if car.index in decoded]
+        self.steps += 1
+        self.clock_s += dt
+        if self.fleet is not None:
+            self.fleet.advance(dt)
+        for car in driving:  # everyone sees where the others were before this step
+            car.bodies.sync(self._objects_for(car))
+        outcomes: list[StepOutcome | None] = [None] * len(self.cars)
+        for car in driving:
+            outcomes[car.index] = self._drive(car, *decoded[car.index], chosen[car.index])
+        if self.clock_s >= self.time_limit_s - 1e-9:
+            for car in self.cars:
+                if car.on_track:
+                    car.state = CarState.TIME_UP
+        return outcomes
+
+    def retire(self, index: int, reason: str) -> None:
+        """Take car ``index`` out of the race (its policy failed, its racer withdrew)."""
+        car = self.cars[index]
+        if car.on_track:
+            car.state = CarState.OUT
+            car.reason = reason
+
+    def observations(self) -> list[object | None]:
+        """What each car that acts next step sees now; ``None`` for the others."""
+        return [self._observe(car) if self._drives(car) else None for car in self.cars]
+
+    def objects(self) -> tuple[RaceObject, ...]:
+        """The bots and every car still on track, as bodies (for pictures)."""
+        return (*self.bots, *(car.as_object() for car in self.cars if car.on_track))
+
+    def standings(self) -> list[RaceCar]:
+        """The cars in race order: finishers by finishing time, then the others by distance
+        covered (those still on track before those out); ties by grid slot."""
+
+        def key(car: RaceCar) -> tuple:
+            if car.state is CarState.FINISHED:
+                return (0, car.finish_time_s, car.grid_slot)
+            group = 2 if car.state is CarState.OUT else 1
+            return (group, -round(car.distance_m(self.track.length), 6), car.grid_slot)
+
+        return sorted(self.cars, key=key)
+
+    def close(self) -> None:
+        for car in self.cars:
+            car.sim.close()
+
+    # ------------------------------------------------------------------ internals
+    def _drives(self, car: RaceCar) -> bool:
+        """On track and not sitting out a penalty (its clock already holds the penalty)."""
+        return car.on_track and car.tracker.sim_time <= self.clock_s + 1e-9
+
+    def _others(self, car: RaceCar) -> list[RaceCar]:
+        return [other for other in self.cars if other.on_track and other is not car]
+
+    def _objects_for(self, car: RaceCar) -> tuple[RaceObject, ...]:
+        """What ``car`` sees and can touch: the bots, then the other cars on track."""
+        return (*self.bots, *(other.as_object() for other in self._others(car)))
+
+    def _observe(self, car: RaceCar) -> object:
+        objects = self._objects_for(car)
+        image = car.camera.observe(car.pose, objects)
+        if car.lidar is None:
+            return image
+        reading = car.lidar.observe(car.pose, objects, car.rng)
+        return {car.racer.sensors[0]: image, car.racer.sensors[1]: reading}
+
+    def _place(self, car: RaceCar, s: float, offset: float) -> None:
+        """Put the car at rest with its reported point ``offset`` metres left of ``s``."""
+        px, py = self.track.point_at(s, offset)
+        yaw = self.track.heading_at(s)
+        x = px - REPORTED_POINT_AHEAD_M * math.cos(yaw)
+        y = py - REPORTED_POINT_AHEAD_M * math.sin(yaw)
+        car.sim.place(x, y, yaw)
+        car.pose = Pose(x, y, yaw)
+        car.point = (px, py)
+        loc = self.track.locate(px, py)
+        car.hint, car.s = loc.segment, loc.s
+
+    @staticmethod
+    def _trace_action(car: RaceCar, action: object) -> int | tuple[float, float]:
+        """The sim-trace's action column: the index, or the continuous pair as given."""
+        if car.actions.kind == "discrete":
+            return int(np.asarray(action).reshape(-1)[0])
+        steering, speed = car.actions.decode(action)
+        return (round(steering, 4), round(speed, 4))
+
+    def _drive(
+        self, car: RaceCar, steering: float, speed: float, action: int | tuple[float, float]
+    ) -> StepOutcome:
+        old = car.point
+        car.pose = car.sim.step(steering, speed)
+        car.point = car.pose.point_ahead(REPORTED_POINT_AHEAD_M)
+        loc = self.track.locate(car.point[0], car.point[1], car.hint)
+        car.hint, car.s = loc.segment, loc.s
+        xs, ys = car.pose.wheel_contacts()
+        wheels = int(np.count_nonzero(self.track.on_track(np.asarray(xs), np.asarray(ys))))
+        judged = car.tracker.update(
+            s=loc.s,
+            dt=car.sim.dt,
+            moved_m=math.hypot(car.point[0] - old[0], car.point[1] - old[1]),
+            wheels_on_track=wheels,
+            crashed=self._crashed(car),
+        )
+        if judged.reset and judged.status is not Status.CRASHED:
+            lane = self.track.width_at(loc) / 4
+            self._place(car, loc.s, lane if loc.left else -lane)
+            car.tracker.respawned_at(car.s)
+        elif judged.reset:  # after a crash the car stays where it is, at rest
+            car.sim.place(car.pose.x, car.pose.y, car.pose.yaw)
+            car.pose = Pose(car.pose.x, car.pose.y, car.pose.yaw)
+        finished = car.tracker.laps[-1] if judged.lap_finished else None
+        if judged.done or judged.truncated:
+            if judged.status is Status.LAP_COMPLETE:
+                car.state = CarState.FINISHED
+                car.finish_time_s = car.tracker.sim_time
+            elif judged.truncated:
+                car.state, car.reason = CarState.TIME_UP, "lap time limit"
+            else:
+                car.state, car.reason = CarState.OUT, f"{judged.status.label}, no resets left"
+        trace = TraceRow(
+            episode=0,
+            steps=car.tracker.steps,
+            x=car.point[0],
+            y=car.point[1],
+            yaw=heading_deg(car.pose.yaw),
+            steer=steering,
+            throttle=speed,
+            action=action,
+            reward=0.0,
+            done=not car.on_track,
+            all_wheels_on_track=wheels == 4,
+            progress=car.tracker.progress,
+            closest_waypoint=self._closest_waypoint(loc),
+            track_len=self.track.length,
+            tstamp=car.tracker.sim_time,
+            episode_status=judged.status.value,
+            pause_duration=judged.penalty_s,
+            obstacle_crash_counter=car.tracker.current_lap.crashes,
+            wall_clock=0.0,
+        )
+        return StepOutcome(
+            judged.status, judged.reset, judged.penalty_s, finished, not car.on_track, trace
+        )
+
+    def _crashed(self, car: RaceCar) -> bool:
+        """DeepRacer's rule: touching a bot or a racer is a crash for the one behind."""
+        index = car.bodies.touching()
+        if index is None:
+            return False
+        bots = self.bots
+        if index >= len(bots):  # another racer: compare the same reported points
+            other = self._others(car)[index - len(bots)]
+            return self._gap_ahead(car.s, other.s) > 0.0
+        bot = bots[index]
+        if self._gap_ahead(car.s, self.track.locate(bot.x, bot.y).s) > 0.0:
+            return True
+        assert self.fleet is not None
+        pause = self.rules.bot_pause()
+        if not self.fleet.paused and pause > 0.0:
+            self.fleet.pause(pause)
+        return False
+
+    def _gap_ahead(self, car_s: float, other_s: float) -> float:
+        """Centre-line distance from ``car_s`` forward to ``other_s``, -L/2..L/2, metres."""
+        half = self.track.length / 2
+        return (other_s - car_s + half) % self.track.length - half
+
+    def _closest_waypoint(self, loc: Location) -> int:
+        behind, ahead = self.track.closest_waypoints(loc)
+        return behind if loc.fraction < 0.5 else ahead

@@ -1,0 +1,94 @@
+"""Head-to-head races: what a race of racers' models needs before it is run, checked where it is
+decided (the command line, a race job, the league), with messages a user can act on."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from racing.headtohead import MAX_RACERS, MIN_RACERS, grid_length_m
+from racing.objects import spread
+from racing.race import RaceConfig
+from racing.track import TrackError
+from training.errors import ServiceError
+from training.models import RacingModel
+from training.rl.race import RaceError, RaceSettings
+from training.services.checks import track_catalog
+from training.services.racing import race_settings
+from training.services.trackfiles import tracks_sync_for
+
+RACE_DEFAULT_BOT_SPEED = 0.75
+"""DeepRacer's 2020 head-to-head qualifying: 6 bots at 0.75 m/s."""
+
+
+@dataclass(frozen=True)
+class RacePlan:
+    """A race ready to run: its models in entry order, track, direction, bots and settings."""
+
+    models: tuple[RacingModel, ...]
+    track_id: str
+    direction: str
+    race: RaceConfig
+    settings: RaceSettings
+
+
+def race_plan(
+    *,
+    model_ids: Sequence[int],
+    track_id: str,
+    direction: str = "native",
+    laps: int = 3,
+    bots: int = 0,
+    bot_speed: float = RACE_DEFAULT_BOT_SPEED,
+    seed: int = 0,
+    round_number: int = 0,
+    off_track_penalty_s: float = 5.0,
+    crash_penalty_s: float = 5.0,
+    time_limit_s: float | None = None,
+    record_video: bool = True,
+) -> RacePlan:
+    """Check a race of ``model_ids`` (2-4 different models, each racing with its own sensors
+    and action space) on ``track_id``; raises :class:`ServiceError` naming what is wrong."""
+    ids = list(model_ids)
+    if not MIN_RACERS <= len(ids) <= MAX_RACERS:
+        raise ServiceError(f"a race has {MIN_RACERS} to {MAX_RACERS} models, not {len(ids)}",
+                           field="models")  # fmt: skip
+    if len(set(ids)) != len(ids):
+        raise ServiceError("a model can take only one place on the grid", field="models")
+    found = {model.pk: model for model in RacingModel.objects.filter(pk__in=ids)}
+    missing = [str(i) for i in ids if i not in found]
+    if missing:
+        raise ServiceError(f"no model with id {', '.join(missing)}", field="models")
+    if direction not in ("native", "ccw", "cw"):
+        raise ServiceError("direction must be native, ccw or cw", field="direction")
+    tracks_sync_for([track_id])
+    try:
+        track = track_catalog().load(track_id)
+    except (KeyError, TrackError, OSError, ValueError):
+        raise ServiceError(f"unknown track {track_id!r}", field="track_id") from None
+    if not track.closed:
+        raise ServiceError(f"track {track_id!r} is not a loop: head-to-head races need one",
+                           field="track_id")  # fmt: skip
+    if bots:
+        stored = race_settings("HEAD_TO_BOT", {"number_of_bots": bots, "bot_speed": bot_speed})
+        race = RaceConfig.from_dict(stored)
+        try:
+            clear = grid_length_m(len(ids))
+            spread(track.length - clear, race.number_of_bots, race.min_bot_gap_m, None)
+        except ValueError as exc:
+            raise ServiceError(str(exc), field="bots") from None
+    else:
+        race = RaceConfig()
+    try:
+        settings = RaceSettings(
+            laps=laps,
+            off_track_penalty_s=off_track_penalty_s,
+            crash_penalty_s=crash_penalty_s,
+            time_limit_s=time_limit_s,
+            seed=seed,
+            round=round_number,
+            record_video=record_video,
+        )
+    except RaceError as exc:
+        raise ServiceError(str(exc), field="laps") from None
+    return RacePlan(tuple(found[i] for i in ids), track_id, direction, race, settings)
