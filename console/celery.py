@@ -64,6 +64,7 @@ def time_limits(job_s: int, evaluation_s: int, quick_s: int) -> dict[str, dict[s
         "training.tasks.train_model": pair(job_s),
         "training.tasks.simulate_episodes": pair(job_s),
         "training.tasks.evaluate_model": pair(evaluation_s),
+        "training.tasks.evaluate_race": pair(evaluation_s),
         "training.tasks.reap_orphans": pair(min(quick_s, 120)),
         "*": pair(quick_s),
     }

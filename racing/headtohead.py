@@ -307,6 +307,7 @@ class HeadToHeadRace:
             car.sim.place(car.pose.x, car.pose.y, car.pose.yaw)
             car.pose = Pose(car.pose.x, car.pose.y, car.pose.yaw)
         finished = car.tracker.laps[-1] if judged.lap_finished else None
+        car.time_sectors(finished)
         if judged.done or judged.truncated:
             if judged.status is Status.LAP_COMPLETE:
                 car.state = CarState.FINISHED

@@ -19,6 +19,9 @@ from racing.sensors import CameraSensor
 from racing.simtrace import TraceRow
 
 MIN_RACERS, MAX_RACERS = 2, 4
+SECTORS = 3
+"""A lap is timed in three sectors, as motor racing's timing screens show it."""
+PURPLE, GREEN, YELLOW = "purple", "green", "yellow"
 GRID_SPACING_M = 0.8
 """Distance along the centre line between two grid slots, metres (two car lengths)."""
 RACER_COLOURS: tuple[tuple[int, int, int], ...] = (
@@ -92,6 +95,26 @@ class RaceCar:
     hint: int | None = None
     finish_time_s: float | None = None
     rows: list[TraceRow] = field(default_factory=list)
+    sectors: list[list[float]] = field(default_factory=list)
+    """Sector times of each finished lap (:data:`SECTORS` a lap), seconds, penalties in."""
+    lap_sectors: list[float] = field(default_factory=list)
+    """Sector times of the lap being driven so far."""
+
+    def time_sectors(self, finished: LapRecord | None) -> None:
+        """After a step: close the sector the car just left, or the lap it just finished."""
+        tracker = self.tracker
+        if finished is not None:
+            times = self.lap_sectors
+            while len(times) < SECTORS - 1:  # a lap cut short of a boundary: split what is left
+                times.append(0.0)
+            times.append(max(0.0, finished.time_s - sum(times)))
+            self.sectors.append(times)
+            self.lap_sectors = []
+            return
+        done = len(self.lap_sectors)
+        if done < SECTORS - 1 and tracker.progress >= 100.0 * (done + 1) / SECTORS:
+            elapsed = tracker.sim_time - tracker.lap_start_time
+            self.lap_sectors.append(max(0.0, elapsed - sum(self.lap_sectors)))
 
     @property
     def on_track(self) -> bool:
@@ -135,3 +158,29 @@ class RaceCar:
                 current.status = Status.TIME_UP
             laps.append(current)
         return laps
+
+
+def sector_colours(cars: list[RaceCar]) -> dict[int, list[str]]:
+    """Motor racing's colours of each car's latest sector times (its lap being driven, else its
+    last lap), by car index: ``purple`` for the session's best in that sector, ``green`` for
+    the car's own best, ``yellow`` for slower."""
+    best = [min((lap[i] for car in cars for lap in car.sectors if lap[i] > 0), default=None)
+            for i in range(SECTORS)]  # fmt: skip
+    best = [min((t for t in (b, *(c.lap_sectors[i] for c in cars if len(c.lap_sectors) > i))
+                 if t), default=None) for i, b in enumerate(best)]  # fmt: skip
+    colours: dict[int, list[str]] = {}
+    for car in cars:
+        shown = car.lap_sectors or (car.sectors[-1] if car.sectors else [])
+        history = [*car.sectors, car.lap_sectors]
+        own = [min((lap[i] for lap in history if len(lap) > i and lap[i] > 0), default=None)
+               for i in range(SECTORS)]  # fmt: skip
+        row = []
+        for i, value in enumerate(shown):
+            if value > 0 and best[i] is not None and value <= best[i] + 1e-9:
+                row.append(PURPLE)
+            elif value > 0 and own[i] is not None and value <= own[i] + 1e-9:
+                row.append(GREEN)
+            else:
+                row.append(YELLOW)
+        colours[car.index] = row
+    return colours

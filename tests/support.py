@@ -319,3 +319,9 @@ def tar_gz(
         if extra:
             extra(tar)
     return raw.getvalue()
+
+
+def constant(steering: float, speed: float) -> list[dict]:
+    """A discrete action space of two identical actions: whatever the network picks, the car
+    drives this one (scripted cars for races, from real checkpoints)."""
+    return [{"steering_angle": steering, "speed": speed}] * 2

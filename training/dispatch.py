@@ -18,6 +18,7 @@ log = logging.getLogger(__name__)
 
 TRAIN_MODEL = "training.tasks.train_model"
 EVALUATE_MODEL = "training.tasks.evaluate_model"
+EVALUATE_RACE = "training.tasks.evaluate_race"
 REPLAY_REWARD = "training.tasks.replay_reward"
 VALIDATE_REWARD = "training.tasks.validate_reward"
 IMPORT_MODEL = "training.tasks.import_model"

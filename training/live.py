@@ -117,6 +117,12 @@ class FramePublisher:
         for key in ("phase", "iteration", "version", "lap"):
             if frame.get(key) is not None:
                 message[key] = frame[key]
+        self.offer(message, counted=False)
+
+    def offer(self, message: dict, *, counted: bool = True) -> None:
+        """Queue any message for the group, dropping the stale one when the sender lags."""
+        if counted:
+            self.encoded += 1
         try:
             self._queue.put_nowait(message)
         except queue.Full:

@@ -298,6 +298,49 @@ class EvaluationJob(Job):
         return list(self.results.get("laps", [])) if isinstance(self.results, dict) else []
 
 
+class RaceJob(Job):
+    """A head-to-head race of 2-4 racers' models (``racing.headtohead``), run on an evaluation
+    worker. ``entries`` lists the cars in entry order: ``{"model": id, "name": ...,
+    "checkpoint": key}``; a ``checkpoint`` key names a frozen copy of the model's weights in
+    the store (a league entry), else the model's best checkpoint is raced as it is when the
+    race starts. The broadcast MP4 and each car's sim-trace go to the store under
+    ``races/<id>/``."""
+
+    owner = models.ForeignKey(
+        settings.AUTH_USER_MODEL, null=True, blank=True, on_delete=models.SET_NULL,
+        related_name="races",
+    )  # fmt: skip
+    title = models.CharField(max_length=120, blank=True)
+    purpose = models.CharField(max_length=16, default="race")  # race | league
+    entries = models.JSONField(default=list)
+    track_id = models.CharField(max_length=64)
+    direction = models.CharField(max_length=8, choices=Direction.choices, default=Direction.NATIVE)
+    laps = models.PositiveSmallIntegerField(
+        default=3, validators=[MinValueValidator(1), MaxValueValidator(10)]
+    )
+    bots = models.PositiveSmallIntegerField(default=0, validators=[MaxValueValidator(6)])
+    bot_speed = models.FloatField(default=0.75)
+    seed = models.PositiveIntegerField(default=0)
+    round_number = models.PositiveSmallIntegerField(default=0)
+    off_track_penalty_s = models.FloatField(default=5.0)
+    crash_penalty_s = models.FloatField(default=5.0)
+    time_limit_s = models.FloatField(null=True, blank=True)
+    results = models.JSONField(default=dict, blank=True)
+    has_video = models.BooleanField(default=False)
+    race_time_s = models.FloatField(default=0.0)
+
+    def __str__(self) -> str:
+        return self.title or f"race #{self.pk}"
+
+    @property
+    def model_ids(self) -> list[int]:
+        return [int(entry["model"]) for entry in self.entries]
+
+    @property
+    def car_rows(self) -> list[dict]:
+        return list(self.results.get("cars", [])) if isinstance(self.results, dict) else []
+
+
 class TrackFile(models.Model):
     """An imported track's file (DeepRacer's ``.npy`` waypoints, as the catalogue stores it),
     kept in the database so that every machine gets it by content: a worker that shares no disk

@@ -26,6 +26,7 @@ from training.services.background import car_export_run, model_import_run, uploa
 from training.services.rewards import reward_validation_run
 from training.worker.common import SIMULATE_EPISODES, simulate_here
 from training.worker.evaluation import run_evaluation_job
+from training.worker.race import run_race_job
 from training.worker.training import run_training_job
 
 _JOB_TASK = {"bind": True, "acks_late": True, "reject_on_worker_lost": True}
@@ -105,3 +106,9 @@ def _requeue_jobs_of_my_previous_life(sender=None, **kwargs) -> None:
     close_old_connections()
     name = getattr(sender, "hostname", None) or socket.gethostname()
     services.jobs_requeue_for_worker(worker=str(name)[:255])
+
+
+@shared_task(name=dispatch.EVALUATE_RACE, **_JOB_TASK)
+def evaluate_race(self, race_id: int, paced: bool = False) -> str:
+    """A head-to-head race on an evaluation worker (``paced``: at real time, for a race day)."""
+    return run_race_job(race_id, worker=self.request.hostname or "", paced=paced)

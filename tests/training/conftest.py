@@ -117,3 +117,32 @@ def ida_model(ppo_discrete, store_dir, db):
         return model
 
     return make
+
+
+@pytest.fixture
+def racer_model(store_dir, db):
+    """Makes a model of a new user's on the oval with an (untrained) checkpoint stored as its
+    best; ``trained=False`` leaves it without one."""
+    import torch
+    from django.contrib.auth import get_user_model
+
+    from training import services
+    from training.interchange.export import checkpoint_bytes
+    from training.rl.checkpoints import new_model
+    from training.store import get_store, keys_for
+
+    def make(username: str, action_space: list, *, trained: bool = True, **extra):
+        owner = get_user_model().objects.create_user(username, password="x-long-pass-1")
+        model = services.model_create(owner=owner, name=f"{username}-car",
+                                      track_id="racecraft_oval", action_space=action_space,
+                                      reward_function="def reward_function(params):\n"
+                                      "    return 1.0\n", validate_reward=False,
+                                      **extra)  # fmt: skip
+        if trained:
+            torch.manual_seed(model.pk)
+            weights = checkpoint_bytes(new_model(services.model_metadata(model)))
+            get_store().put_bytes(keys_for(model.pk).best, weights)
+            services.model_mark_checkpoint(model=model)
+        return model
+
+    return make

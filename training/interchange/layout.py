@@ -121,3 +121,37 @@ def _iteration(n: int) -> int:
     if isinstance(n, bool) or not isinstance(n, int) or n < 0:
         raise StoreError(f"iteration must be a whole number >= 0, not {n!r}")
     return n
+
+
+@dataclass(frozen=True)
+class RaceKeys:
+    """Object keys of one head-to-head race: ``races/<id>/broadcast.mp4``, and each car's
+    sim-trace in DeepRacer-for-Cloud's evaluation layout under the race's folder of that car
+    (``races/<id>/<model id>/evaluation-<stamp>/evaluation-simtrace/0-iteration.csv``, beside
+    its ``model/model_metadata.json``), so deepracer-utils reads a car's folder as a model's.
+    League entries keep a frozen copy of their checkpoint at :meth:`frozen_checkpoint`."""
+
+    race_id: int
+
+    @property
+    def prefix(self) -> str:
+        return f"races/{_name(self.race_id, 'race id')}/"
+
+    @property
+    def video(self) -> str:
+        return f"{self.prefix}broadcast.mp4"
+
+    def car_folder(self, model_id: int) -> str:
+        return f"{self.prefix}{_name(model_id, 'model id')}/"
+
+    def car_simtrace(self, model_id: int, stamp: str) -> str:
+        folder = self.car_folder(model_id)
+        return f"{folder}evaluation-{_stamp(stamp)}/evaluation-simtrace/0-iteration.csv"
+
+    def car_metadata(self, model_id: int) -> str:
+        return f"{self.car_folder(model_id)}model/model_metadata.json"
+
+    @staticmethod
+    def frozen_checkpoint(scope: str, model_id: int) -> str:
+        """A league entry's frozen weights: ``league/<scope>/<model id>.zip``."""
+        return f"league/{_name(scope, 'league scope')}/{_name(model_id, 'model id')}.zip"

@@ -84,6 +84,8 @@ class RaceEntry:
     racer: Racer = field(default_factory=Racer)
     policy: Policy | None = None
     unavailable: str = ""
+    metadata: dict = field(default_factory=dict)
+    """Its ``model_metadata.json``, written beside its sim-trace."""
 
 
 @dataclass

@@ -12,12 +12,14 @@ from django.db.models import Q
 from django.utils import timezone
 
 from training import dispatch
-from training.models import RUNNING_JOB_STATUSES, EvaluationJob, JobStatus, RacingModel, TrainingJob
+from training.models import RUNNING_JOB_STATUSES, JobStatus, RacingModel, TrainingJob
 from training.services.job_runs import job_complete, job_fail
 from training.services.job_states import (
+    JOB_MODELS,
     Job,
     enqueue_after_commit,
     gave_up_error,
+    job_rows,
     max_attempts,
     task_name,
     transition_where,
@@ -53,9 +55,9 @@ def _redispatch_lost(job_model: type[Job], *, grace_s: float) -> int:
     since it was queued or last sent. Unknown presence (broker down) sends nothing."""
     before = timezone.now() - timezone.timedelta(seconds=grace_s)
     waiting = list(
-        job_model.objects.filter(status=JobStatus.QUEUED, created_at__lt=before)
+        job_rows(job_model)
+        .filter(status=JobStatus.QUEUED, created_at__lt=before)
         .filter(Q(heartbeat_at__isnull=True) | Q(heartbeat_at__lt=before))
-        .select_related("model")
     )
     if not waiting:
         return 0
@@ -92,10 +94,10 @@ def jobs_reap_orphans(*, stale_after_s: float = 300.0, lost_task_grace_s: float 
     stale = now - timezone.timedelta(seconds=stale_after_s)
     forgotten_before = now - timezone.timedelta(days=1)
     marked = 0
-    for job_model in (TrainingJob, EvaluationJob):
-        for job in job_model.objects.filter(
+    for job_model in JOB_MODELS:
+        for job in job_rows(job_model).filter(
             status__in=RUNNING_JOB_STATUSES, heartbeat_at__lt=stale
-        ).select_related("model"):
+        ):
             marked += _requeue(job, reason="its worker stopped sending heartbeats")
         # Queued (or queued again, or sent again: heartbeat_at marks that) over a day ago.
         marked += _fail_each(
@@ -119,11 +121,11 @@ def jobs_requeue_for_worker(*, worker: str) -> int:
     checkpoint."""
     marked = 0
     node = worker[:200]
-    for job_model in (TrainingJob, EvaluationJob):
-        for job in job_model.objects.filter(
+    for job_model in JOB_MODELS:
+        for job in job_rows(job_model).filter(
             Q(worker=worker) | Q(worker__startswith=f"{node}#"),
             status__in=RUNNING_JOB_STATUSES,
-        ).select_related("model"):
+        ):
             marked += _requeue(job, reason=f"its worker {worker} was restarted")
     return marked
 

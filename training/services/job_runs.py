@@ -15,7 +15,6 @@ from django.utils import timezone
 from training.models import (
     ACTIVE_JOB_STATUSES,
     RUNNING_JOB_STATUSES,
-    EvaluationJob,
     JobStatus,
     RacingModel,
     TrainingJob,
@@ -23,13 +22,14 @@ from training.models import (
 from training.services.job_states import (
     Job,
     gave_up_error,
+    job_ended,
+    job_rows,
+    job_settle,
     max_attempts,
-    model_settle,
     reconnecting,
     transition,
     transition_where,
 )
-from training.signals import evaluation_finished
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +75,7 @@ def job_claim(*, job_model: type[Job], job_id: int, worker: str) -> Job | None:
     (compare-and-set on the dead worker's name), and a training job resumes from its last
     checkpoint. ``worker`` is the Celery node name; the job records ``<node>#<pid>``."""
     now = timezone.now()
-    job = job_model.objects.select_related("model").get(pk=job_id)
+    job = job_rows(job_model).get(pk=job_id)
     me = worker_id(worker)
     # The page's clock counts training time already spent before a restart.
     started = now - timezone.timedelta(seconds=_trained_seconds(job))
@@ -134,9 +134,9 @@ def job_complete(*, job: Job, on_model_error: str = "", **fields) -> bool:
             finished_at=timezone.now(), **fields,
         )  # fmt: skip
         if done:
-            model_settle(job.model, on_model_error)
-    if done and isinstance(job, EvaluationJob):
-        evaluation_finished.send(sender=EvaluationJob, evaluation_id=job.pk)
+            job_settle(job, on_model_error)
+    if done:
+        job_ended(job)
     return done
 
 
@@ -152,9 +152,9 @@ def job_fail(*, job: Job, error: str) -> bool:
             error=error[:2000], finished_at=timezone.now(),
         )  # fmt: skip
         if failed:
-            model_settle(job.model, error)
-    if failed and isinstance(job, EvaluationJob):
-        evaluation_finished.send(sender=EvaluationJob, evaluation_id=job.pk)
+            job_settle(job, error)
+    if failed:
+        job_ended(job)
     return failed
 
 

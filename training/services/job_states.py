@@ -12,11 +12,35 @@ from django.db.models import Q
 
 from training import dispatch, live
 from training.errors import ServiceError
-from training.models import ACTIVE_JOB_STATUSES, EvaluationJob, RacingModel, TrainingJob
+from training.models import ACTIVE_JOB_STATUSES, EvaluationJob, RaceJob, RacingModel, TrainingJob
 from training.services.checks import limit
+from training.signals import evaluation_finished, race_finished
 
 log = logging.getLogger(__name__)
-Job = TrainingJob | EvaluationJob
+Job = TrainingJob | EvaluationJob | RaceJob
+JOB_MODELS: tuple[type[Job], ...] = (TrainingJob, EvaluationJob, RaceJob)
+"""Every kind of job the reaper looks after."""
+
+
+def job_rows(job_model: type[Job]):
+    """``job_model``'s rows, with their model fetched along for the jobs that have one."""
+    rows = job_model.objects.all()
+    return rows if job_model is RaceJob else rows.select_related("model")
+
+
+def job_settle(job: Job, error: str = "") -> None:
+    """After a job ends: its model settles (:func:`model_settle`); a race has several
+    models and changes none of them."""
+    if not isinstance(job, RaceJob):
+        model_settle(job.model, error)
+
+
+def job_ended(job: Job) -> None:
+    """Tell whoever listens that an evaluation or a race reached a final state."""
+    if isinstance(job, EvaluationJob):
+        evaluation_finished.send(sender=EvaluationJob, evaluation_id=job.pk)
+    elif isinstance(job, RaceJob):
+        race_finished.send(sender=RaceJob, race_id=job.pk)
 
 
 def reconnecting(func):
@@ -57,7 +81,9 @@ def model_has_active_jobs(model: RacingModel) -> bool:
 
 
 def job_kind(job: Job) -> str:
-    """``"training"`` or ``"evaluation"``: the job's live group and URL segment."""
+    """``"training"``, ``"evaluation"`` or ``"race"``: the job's live group."""
+    if isinstance(job, RaceJob):
+        return "race"
     return "training" if isinstance(job, TrainingJob) else "evaluation"
 
 
@@ -137,4 +163,6 @@ def gave_up_error(job: Job) -> str:
 
 
 def task_name(job: Job) -> str:
+    if isinstance(job, RaceJob):
+        return dispatch.EVALUATE_RACE
     return dispatch.TRAIN_MODEL if isinstance(job, TrainingJob) else dispatch.EVALUATE_MODEL

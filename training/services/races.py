@@ -6,14 +6,19 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from django.db import transaction
+
 from racing.headtohead import MAX_RACERS, MIN_RACERS, grid_length_m
 from racing.objects import spread
 from racing.race import RaceConfig
 from racing.track import TrackError
+from training import dispatch
 from training.errors import ServiceError
-from training.models import RacingModel
+from training.models import RaceJob, RacingModel
 from training.rl.race import RaceError, RaceSettings
 from training.services.checks import track_catalog
+from training.services.job_states import enqueue_after_commit
+from training.services.model_files import model_metadata
 from training.services.racing import race_settings
 from training.services.trackfiles import tracks_sync_for
 
@@ -92,3 +97,59 @@ def race_plan(
     except RaceError as exc:
         raise ServiceError(str(exc), field="laps") from None
     return RacePlan(tuple(found[i] for i in ids), track_id, direction, race, settings)
+
+
+def race_start(
+    *,
+    plan: RacePlan,
+    user,
+    title: str = "",
+    purpose: str = "race",
+    checkpoints: dict[int, str] | None = None,
+    enqueue: bool = True,
+) -> RaceJob:
+    """Queue ``plan`` as a race job for an evaluation worker. A user races their own models;
+    racing other people's takes staff rights, or a league service (``purpose="league"``)
+    that checked the facilitator's role and froze each entry's weights (``checkpoints``:
+    model id → store key)."""
+    owners = {model.owner_id for model in plan.models}
+    mine = owners == {getattr(user, "pk", None)}
+    if purpose != "league" and not mine and not getattr(user, "is_staff", False):
+        raise ServiceError("you can race only your own models", field="models")
+    frozen = checkpoints or {}
+    entries = [{"model": m.pk, "name": m.name, "checkpoint": frozen.get(m.pk, "")}
+               for m in plan.models]  # fmt: skip
+    for entry, model in zip(entries, plan.models, strict=True):
+        if entry["checkpoint"]:  # frozen: the metadata too, so the entry outlives its model
+            entry["metadata"] = model_metadata(model).to_json()
+    settings = plan.settings
+    with transaction.atomic():
+        job = RaceJob.objects.create(
+            owner=user if getattr(user, "pk", None) else None, title=title[:120],
+            purpose=purpose, entries=entries, track_id=plan.track_id,
+            direction=plan.direction, laps=settings.laps,
+            bots=plan.race.number_of_bots if plan.race.has_bots else 0,
+            bot_speed=plan.race.bot_speed if plan.race.has_bots else RACE_DEFAULT_BOT_SPEED,
+            seed=settings.seed, round_number=settings.round,
+            off_track_penalty_s=settings.off_track_penalty_s,
+            crash_penalty_s=settings.crash_penalty_s, time_limit_s=settings.time_limit_s,
+        )  # fmt: skip
+        if enqueue:
+            enqueue_after_commit(job, dispatch.EVALUATE_RACE)
+    return job
+
+
+def race_plan_of(job: RaceJob, *, record_video: bool = True) -> RacePlan:
+    """The plan a stored race job runs (models missing since are left to the runner)."""
+    models = {m.pk: m for m in RacingModel.objects.filter(pk__in=job.model_ids)}
+    race = RaceConfig()
+    if job.bots:
+        race = RaceConfig.from_dict(race_settings(
+            "HEAD_TO_BOT", {"number_of_bots": job.bots, "bot_speed": job.bot_speed}))  # fmt: skip
+    settings = RaceSettings(
+        laps=job.laps, off_track_penalty_s=job.off_track_penalty_s,
+        crash_penalty_s=job.crash_penalty_s, time_limit_s=job.time_limit_s, seed=job.seed,
+        round=job.round_number, record_video=record_video,
+    )  # fmt: skip
+    ordered = tuple(models[i] for i in job.model_ids if i in models)
+    return RacePlan(ordered, job.track_id, job.direction, race, settings)

@@ -1,41 +1,87 @@
-"""A head-to-head race of stored models, run here: their checkpoints from the store (trained
-here or imported, AWS-era models included), the track from the catalogue (imported tracks
-synced from the database first), then :func:`training.rl.race.run_race`.
+"""Head-to-head races of stored models, run here: in this process for the command line
+(:func:`race_models`), or as a race job on an evaluation worker (:func:`run_race_job`).
 
-A model that cannot race (no trained checkpoint, a file missing from the store, weights that do
-not load) still takes its grid slot and is out from the start with the reason."""
+The cars come from the store (trained here or imported, AWS-era models included): a league
+entry from its frozen copy and the metadata recorded when it was entered (deleting or
+retraining the model changes nothing there), any other entry from its model's best checkpoint
+when the race starts. A car that cannot race (no checkpoint, a file missing from the store,
+weights that do not load, a deleted model, a withdrawn racer) keeps its grid slot and is out
+from the start with the reason; the race goes on. The track comes from the catalogue (an
+imported one synced from the database first)."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
+
+from django.utils import timezone
 
 from racing.headtohead import Racer
 from racing.race import RaceConfig
 from racing.track import Track
-from training.models import RacingModel
+from training import live, services
+from training.interchange.layout import RaceKeys, evaluation_stamp
+from training.models import RaceJob, RacingModel
 from training.rl.algorithms import set_torch_threads
 from training.rl.checkpoints import CheckpointError, load_checkpoint
 from training.rl.evaluation import sb3_policy
+from training.rl.metadata import MetadataError, ModelMetadata
 from training.rl.race import RaceEntry, RaceReport, RaceSettings, run_race
 from training.services import model_metadata, track_catalog, tracks_sync_for
+from training.services.races import race_plan_of
 from training.storage import StoreError
 from training.store import get_store, keys_for
+from training.worker.common import Heartbeat, StopFlag, csv_text, fail_with
+from training.worker.racelive import RaceBroadcast
+
+CLEAR_ERRORS = (StoreError,)
 
 
-def race_entry(model: RacingModel) -> RaceEntry:
+def race_entry(model: RacingModel, *, checkpoint: str = "", metadata: dict | None = None
+               ) -> RaceEntry:  # fmt: skip
     """The model's car: its sensors, action space and policy (``unavailable`` when its
-    checkpoint cannot be had)."""
-    racer = Racer(sensors=tuple(model.sensors), action_space=model.action_space, name=model.name)
-    entry = RaceEntry(key=model.pk, name=model.name, racer=racer)
-    if not model.has_checkpoint:
+    weights cannot be had). ``checkpoint`` and ``metadata``: a frozen league entry."""
+    meta = services.model_metadata(model) if metadata is None else None
+    return _entry(model.pk, model.name, meta, checkpoint or keys_for(model.pk).best,
+                  metadata=metadata, trained=model.has_checkpoint or bool(checkpoint))  # fmt: skip
+
+
+def _entry(key: int, name: str, meta: ModelMetadata | None, checkpoint: str, *,
+           metadata: dict | None = None, trained: bool = True) -> RaceEntry:  # fmt: skip
+    entry = RaceEntry(key=key, name=name)
+    try:
+        meta = meta or ModelMetadata.from_json(metadata)
+    except MetadataError as exc:
+        entry.unavailable = f"its model_metadata.json is not valid: {exc}"
+        return entry
+    entry.racer = Racer(sensors=tuple(meta.sensor), action_space=meta.actions.to_metadata(),
+                        name=name)  # fmt: skip
+    entry.metadata = meta.to_json()
+    if not trained:
         entry.unavailable = "it has no trained checkpoint"
         return entry
     try:
-        data = get_store().get_bytes(keys_for(model.pk).best)
-        entry.policy = sb3_policy(load_checkpoint(data, model_metadata(model)))
-    except (CheckpointError, StoreError, KeyError, FileNotFoundError) as exc:
+        entry.policy = sb3_policy(load_checkpoint(get_store().get_bytes(checkpoint), meta))
+    except (CheckpointError, StoreError) as exc:
         entry.unavailable = f"its checkpoint cannot be loaded: {exc}"
     return entry
+
+
+def job_entries(job: RaceJob) -> list[RaceEntry]:
+    """The cars of a race job, in entry order."""
+    models = {m.pk: m for m in RacingModel.objects.filter(pk__in=job.model_ids)}
+    entries = []
+    for item in job.entries:
+        key, name = int(item["model"]), str(item.get("name", ""))
+        if item.get("withdrawn"):
+            entries.append(RaceEntry(key=key, name=name, unavailable=str(item["withdrawn"])))
+        elif item.get("checkpoint") and item.get("metadata"):
+            entries.append(_entry(key, name, None, item["checkpoint"], metadata=item["metadata"]))
+        elif key in models:
+            entries.append(race_entry(models[key]))
+        else:
+            entries.append(RaceEntry(key=key, name=name, unavailable="its model was deleted"))
+    return entries
 
 
 def race_track(track_id: str, direction: str) -> Track:
@@ -59,3 +105,48 @@ def race_models(
     entries = [race_entry(model) for model in models]
     track = race_track(track_id, direction)
     return run_race(entries, track, settings, race=race, title=title, **hooks)
+
+
+def run_race_job(race_id: int, worker: str = "", *, paced: bool = False) -> str:
+    """Claim and run race job ``race_id``: the results on the job, the broadcast MP4 and each
+    car's sim-trace in the store, live frames and timing to the race's group while anyone
+    watches (``paced``: at real time, for a live race day). Returns ``"completed"``,
+    ``"failed"``, ``"skipped"`` or ``"superseded"``."""
+    job = services.job_claim(job_model=RaceJob, job_id=race_id, worker=worker)
+    if job is None:
+        return "skipped"
+    set_torch_threads(1)
+    broadcast = RaceBroadcast(live.job_group("race", job.pk), paced=paced)
+    store, keys = get_store(), RaceKeys(job.pk)
+    try:
+        entries = job_entries(job)
+        track = race_track(job.track_id, job.direction)
+        plan = race_plan_of(job)
+        services.job_begin(job=job)
+        with Heartbeat(RaceJob, job.pk):
+            report = run_race(entries, track, plan.settings, race=plan.race, title=job.title,
+                              should_stop=StopFlag(job), on_frame=broadcast.frame)  # fmt: skip
+        stamp = evaluation_stamp(job.started_at or timezone.now())
+        metadata = {entry.key: entry.metadata for entry in entries}
+        for car in report.cars:
+            store.put_bytes(keys.car_simtrace(int(car.key), stamp), csv_text(car.rows).encode(),
+                            "text/csv")  # fmt: skip
+            if metadata.get(car.key):
+                data = json.dumps(metadata[car.key]).encode()
+                store.put_bytes(keys.car_metadata(int(car.key)), data, "application/json")
+        if report.video_mp4:
+            store.put_bytes(keys.video, report.video_mp4, "video/mp4")
+    except Exception as exc:  # noqa: BLE001 - every failure ends the job with a message
+        return fail_with(job, exc, what="race", clear=CLEAR_ERRORS)
+    finally:
+        broadcast.close()
+    completed = services.job_complete(job=job, results=report.to_json(),
+                                      has_video=bool(report.video_mp4),
+                                      race_time_s=report.race_time_s)  # fmt: skip
+    if completed:
+        message = {"type": "job.status", "status": "COMPLETED", "results": report.to_json()}
+        live.send(live.job_group("race", job.pk), message)
+    return "completed" if completed else "superseded"
+
+
+__all__ = ["job_entries", "model_metadata", "race_entry", "race_models", "run_race_job"]

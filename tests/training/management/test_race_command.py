@@ -10,44 +10,14 @@ import json
 
 import av
 import pytest
-import torch
-from django.contrib.auth import get_user_model
 from django.core.management import call_command
 from django.core.management.base import CommandError
 
-from training import services
-from training.interchange.export import checkpoint_bytes
-from training.rl.checkpoints import new_model
+from tests.support import constant
 from training.store import get_store, keys_for
 
-REWARD = "def reward_function(params):\n    return 1.0\n"
 CONTRACT = {"model", "name", "position", "finished", "lap_times_s", "total_time_s", "progress",
             "off_track", "crashes", "resets"}  # fmt: skip
-
-
-def constant(steering: float, speed: float) -> list[dict]:
-    """Two identical actions: whatever the network picks, the car drives this one."""
-    return [{"steering_angle": steering, "speed": speed}] * 2
-
-
-@pytest.fixture
-def racer_model(store_dir, db):
-    """A model of a new user's, with an (untrained) checkpoint stored as its best."""
-
-    def make(username: str, action_space: list, *, trained: bool = True, **extra):
-        owner = get_user_model().objects.create_user(username, password="x-long-pass-1")
-        model = services.model_create(owner=owner, name=f"{username}-car",
-                                      track_id="racecraft_oval", action_space=action_space,
-                                      reward_function=REWARD, validate_reward=False,
-                                      **extra)  # fmt: skip
-        if trained:
-            torch.manual_seed(model.pk)
-            weights = checkpoint_bytes(new_model(services.model_metadata(model)))
-            get_store().put_bytes(keys_for(model.pk).best, weights)
-            services.model_mark_checkpoint(model=model)
-        return model
-
-    return make
 
 
 def race(*args: object) -> dict:

@@ -1,0 +1,82 @@
+"""A race's live broadcast: each broadcast frame encoded once as a JPEG, with the timing
+(clock, laps, positions, sector colours), and sent once to the race's Channels group however
+many people watch; paced at real time for a live race day.
+
+Frames are encoded only while someone watches the race (or a race day paces it); a background
+sender drops a stale frame rather than slow the race (:class:`training.live.FramePublisher`).
+"""
+
+from __future__ import annotations
+
+import base64
+import time
+
+import cv2
+import numpy as np
+
+from racing.headtohead import CarState, HeadToHeadRace
+from racing.racecar import sector_colours
+from training import live
+
+JPEG_QUALITY = 80
+FRAME_S = 1.0 / 15.0
+"""A frame of race clock: paced races show one every 1/15 s of wall time."""
+
+
+def race_timing(race: HeadToHeadRace) -> dict:
+    """What the broadcast page shows beside the video, as plain JSON types."""
+    colours = sector_colours(race.cars)
+    cars = []
+    for position, car in enumerate(race.standings(), start=1):
+        done = [lap.time_s for lap in car.tracker.laps]
+        current = car.lap_sectors or (car.sectors[-1] if car.sectors else [])
+        cars.append({
+            "index": car.index,
+            "name": car.racer.name or f"Car {car.index + 1}",
+            "colour": "#{:02x}{:02x}{:02x}".format(*car.colour),
+            "position": position,
+            "lap": min(race.rules.laps, car.laps_done + (car.state is not CarState.FINISHED)),
+            "laps_done": car.laps_done,
+            "state": car.state.value,
+            "reason": car.reason,
+            "lap_time_s": round(car.tracker.sim_time - car.tracker.lap_start_time, 2)
+            if car.state is CarState.RACING else None,
+            "last_lap_s": round(done[-1], 3) if done else None,
+            "best_lap_s": round(min(done), 3) if done else None,
+            "sectors": [round(t, 2) for t in current],
+            "sector_colours": colours.get(car.index, []),
+            "finish_s": None if car.finish_time_s is None else round(car.finish_time_s, 3),
+        })  # fmt: skip
+    return {"clock_s": round(race.clock_s, 2), "laps": race.rules.laps, "over": race.over,
+            "cars": cars}  # fmt: skip
+
+
+class RaceBroadcast:
+    """``frame(rgb, race)`` for :func:`training.rl.race.run_race`'s ``on_frame``."""
+
+    def __init__(self, group: str, *, paced: bool = False) -> None:
+        self.group = group
+        self.paced = paced
+        self.publisher = live.FramePublisher(group)
+        self._next = time.monotonic()
+        self.encodes = 0
+
+    def frame(self, rgb: np.ndarray, race: HeadToHeadRace) -> None:
+        if self.paced:
+            self._next += FRAME_S
+            wait = self._next - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            else:
+                self._next = time.monotonic()  # behind: never race to catch up
+        if not (self.paced or self.publisher.watched()):
+            return
+        ok, jpeg = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        if not ok:
+            return
+        self.encodes += 1
+        self.publisher.offer({"type": "race.frame", "frame": base64.b64encode(jpeg).decode(),
+                              "timing": race_timing(race)})  # fmt: skip
+
+    def close(self) -> None:
+        self.publisher.close()
