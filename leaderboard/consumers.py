@@ -5,6 +5,7 @@ events, organiser/facilitators/entrants for private ones) joins the event's grou
 is refused with close code 4404 before the handshake completes. Messages, as JSON:
 
 - ``{"type": "snapshot", "rows": [...]}`` on connect;
+- ``{"type": "bracket"}`` when the event's bracket moved on (the page fetches it again);
 - ``{"type": "result", "submission": {...} | null, "rows": [...]}`` when a result lands: the
   whole leaderboard (rows as :class:`~leaderboard.selectors.LeaderboardRow`) and the
   submission that just finished as the pages show it to this viewer
@@ -59,6 +60,9 @@ class LeaderboardConsumer(AsyncJsonWebsocketConsumer):
 
     async def receive_json(self, content: Any, **kwargs: Any) -> None:
         """Viewers only listen."""
+
+    async def league_bracket(self, message: dict) -> None:
+        await self.send_json({"type": "bracket"})
 
     async def league_result(self, message: dict) -> None:
         user = self.scope.get("user")

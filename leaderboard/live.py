@@ -51,3 +51,20 @@ def broadcast_result(submission_id: int) -> None:
     submission = Submission.objects.select_related("event").filter(pk=submission_id).first()
     if submission is not None:
         live.send(event_group(submission.event_id), result_message(submission))
+
+
+def bracket_changed(event_id: int) -> None:
+    """Tell the event's viewers that its bracket moved on (a race started or ended)."""
+    live.send(event_group(event_id), {"type": "league.bracket", "event_id": event_id})
+
+
+def broadcast_group(event_id: int) -> str:
+    """The Channels group of an event's race-day broadcast page: ``league-broadcast-<id>``;
+    a race-day race sends its frames there besides its own group."""
+    return f"league-broadcast-{event_id}"
+
+
+def race_day_changed(event_id: int, message: dict) -> None:
+    """Tell the broadcast page and the facilitator's page what happened (a race on track, a
+    race over with its winner, the queue changed)."""
+    live.send(broadcast_group(event_id), {"type": "raceday.status", **message})

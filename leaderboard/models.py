@@ -14,7 +14,7 @@ from django.core.validators import MaxValueValidator, MinValueValidator, RegexVa
 from django.db import models
 from django.utils import timezone
 
-from training.models import Direction, EvaluationJob, RaceType, RacingModel
+from training.models import Direction, EvaluationJob, RaceJob, RaceType, RacingModel
 from training.services.checks import track_catalog
 
 MIN_EVALUATION_LAPS = 3
@@ -106,6 +106,23 @@ class Event(models.Model):
     )
     is_private = models.BooleanField(default=False)
     invite_token = models.CharField(max_length=64, unique=True, default=new_invite_token)
+    # Head-to-head: after qualifying (this event's submissions), a single-elimination bracket.
+    bracket_size = models.PositiveSmallIntegerField(
+        default=0, help_text="0: no bracket; else the top 4, 8, 16 or 32 qualifiers race it."
+    )
+    bracket_laps = models.PositiveSmallIntegerField(
+        default=2, validators=[MinValueValidator(1), MaxValueValidator(10)]
+    )
+    bracket_on_race_day = models.BooleanField(
+        default=False, help_text="Matches wait in the race-day queue instead of running at once."
+    )
+    bracket = models.JSONField(default=dict, blank=True)
+    """``{"bracket": leaderboard.bracket.Bracket.to_dict(), "seeds": [submission ids by seed],
+    "withdrawn": [submission ids]}`` once seeded."""
+    # Race day: a facilitator's queue and the broadcast page.
+    spectator_token = models.CharField(max_length=64, blank=True)
+    """Non-empty: anyone with ``?watch=<token>`` sees the broadcast page without an account."""
+    race_day_paused = models.BooleanField(default=False)
     organiser = models.ForeignKey(
         settings.AUTH_USER_MODEL, on_delete=models.PROTECT, related_name="organised_events"
     )
@@ -245,6 +262,11 @@ class Submission(models.Model):
     ranked = models.BooleanField(default=False)
     score_ms = models.PositiveIntegerField(null=True, blank=True)
     laps = models.JSONField(default=list, blank=True)
+    entered_model_id = models.PositiveIntegerField(null=True, blank=True)
+    """The model's id when entered (kept when the model is deleted)."""
+    frozen_checkpoint = models.CharField(max_length=200, blank=True)
+    """A copy of the model's weights when entered: what its races drive (store key)."""
+    model_metadata = models.JSONField(default=dict, blank=True)
 
     class Meta:
         ordering = ["-created_at", "-pk"]
@@ -256,6 +278,67 @@ class Submission(models.Model):
     @property
     def has_video(self) -> bool:
         return bool(self.evaluation_id and self.evaluation and self.evaluation.has_video)
+
+
+class BracketMatch(models.Model):
+    """One race of an event's bracket: who races (``top``: the better seed), its race job,
+    and who went through. ``note`` says why a match was decided without a finish."""
+
+    event = models.ForeignKey(Event, on_delete=models.CASCADE, related_name="matches")
+    round = models.PositiveSmallIntegerField()
+    index = models.PositiveSmallIntegerField()
+    top = models.ForeignKey(Submission, null=True, on_delete=models.SET_NULL, related_name="+")
+    bottom = models.ForeignKey(Submission, null=True, on_delete=models.SET_NULL, related_name="+")
+    winner = models.ForeignKey(
+        Submission, null=True, blank=True, on_delete=models.SET_NULL, related_name="+"
+    )
+    race = models.ForeignKey(
+        RaceJob, null=True, blank=True, on_delete=models.SET_NULL, related_name="bracket_matches"
+    )
+    attempts = models.PositiveSmallIntegerField(default=0)
+    note = models.CharField(max_length=255, blank=True)
+    created_at = models.DateTimeField(default=timezone.now)
+
+    class Meta:
+        ordering = ["event", "round", "index"]
+        constraints = [
+            models.UniqueConstraint(fields=["event", "round", "index"], name="unique_match_slot")
+        ]
+
+    def __str__(self) -> str:
+        return f"{self.event} round {self.round} match {self.index + 1}"
+
+
+class RaceDaySlot(models.Model):
+    """One turn in a race day's queue: a racer's solo run (``submission``) or a bracket
+    ``match``, in the facilitator's ``position`` order."""
+
+    class Status(models.TextChoices):
+        WAITING = "WAITING", "Waiting"
+        RUNNING = "RUNNING", "On track"
+        DONE = "DONE", "Done"
+        SKIPPED = "SKIPPED", "Skipped"
+
+    event = models.ForeignKey(Event, on_delete=models.CASCADE, related_name="race_day_slots")
+    position = models.PositiveIntegerField()
+    submission = models.ForeignKey(
+        Submission, null=True, blank=True, on_delete=models.CASCADE, related_name="+"
+    )
+    match = models.ForeignKey(
+        BracketMatch, null=True, blank=True, on_delete=models.CASCADE, related_name="+"
+    )
+    status = models.CharField(max_length=8, choices=Status.choices, default=Status.WAITING)
+    race = models.ForeignKey(
+        RaceJob, null=True, blank=True, on_delete=models.SET_NULL, related_name="race_day_slots"
+    )
+    notified = models.BooleanField(default=False)
+    created_at = models.DateTimeField(default=timezone.now)
+
+    class Meta:
+        ordering = ["event", "position", "pk"]
+
+    def __str__(self) -> str:
+        return f"{self.event} slot {self.position}"
 
 
 class Notification(models.Model):

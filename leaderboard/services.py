@@ -18,8 +18,9 @@ from leaderboard.events import event_entry_check, event_race
 from leaderboard.live import broadcast_result
 from leaderboard.models import Event, RacerProfile, Submission
 from leaderboard.profiles import profile_for
+from training.errors import StoreError
 from training.models import EvaluationJob, JobStatus, RacingModel
-from training.services import ServiceError, evaluation_start
+from training.services import ServiceError, evaluation_start, model_freeze, model_metadata
 
 log = logging.getLogger(__name__)
 
@@ -76,9 +77,19 @@ def submission_create(*, event: Event, user, model: RacingModel) -> Submission:
             )
         except ServiceError as exc:
             raise LeagueError(exc.message, field="model") from None
-        return Submission.objects.create(
-            event=event, racer=user, model=model, model_name=model.name, evaluation=job
-        )
+        submission = Submission.objects.create(
+            event=event, racer=user, model=model, model_name=model.name, evaluation=job,
+            entered_model_id=model.pk, model_metadata=model_metadata(model).to_json(),
+        )  # fmt: skip
+        try:  # the weights it races with from now on, whatever happens to the model
+            submission.frozen_checkpoint = model_freeze(
+                model=model, scope=f"event-{event.pk}", entry=submission.pk
+            )
+            submission.save(update_fields=["frozen_checkpoint"])
+        except StoreError:  # its evaluation reads the same file and says what is wrong
+            log.warning("could not keep the weights of submission %s", submission.pk,
+                        exc_info=True)  # fmt: skip
+        return submission
 
 
 def laps_from_results(rows: Iterable[dict]) -> list[ranking.Lap]:

@@ -9,9 +9,11 @@ import logging
 from django.db.models.signals import post_save
 from django.dispatch import receiver
 
+from leaderboard.headtohead import bracket_race_finished
+from leaderboard.raceday import race_day_race_finished
 from leaderboard.services import submission_record_result
-from training.models import FINISHED_JOB_STATUSES, EvaluationJob
-from training.signals import evaluation_finished
+from training.models import FINISHED_JOB_STATUSES, EvaluationJob, RaceJob
+from training.signals import evaluation_finished, race_finished
 
 log = logging.getLogger(__name__)
 
@@ -32,3 +34,16 @@ def evaluation_saved(sender, instance: EvaluationJob, **kwargs) -> None:
 @receiver(evaluation_finished, sender=EvaluationJob, dispatch_uid="league-evaluation-finished")
 def evaluation_done(sender, evaluation_id: int, **kwargs) -> None:
     _record(evaluation_id)
+
+
+@receiver(race_finished, sender=RaceJob, dispatch_uid="league-race-finished")
+def race_done(sender, race_id: int, **kwargs) -> None:
+    """A bracket's match or a race day's turn ended: the bracket goes on, the queue moves."""
+    try:
+        bracket_race_finished(race_id=race_id)
+    except Exception:  # noqa: BLE001 - never break the job's bookkeeping; see bracket_reconcile
+        log.exception("could not record the bracket race %s", race_id)
+    try:
+        race_day_race_finished(race_id=race_id)
+    except Exception:  # noqa: BLE001
+        log.exception("could not record the race-day race %s", race_id)

@@ -1,4 +1,5 @@
-"""Head-to-head races: 2-4 racers' cars, each driven by its own policy, on one track.
+"""Head-to-head races: 2-4 racers' cars, each driven by its own policy, on one track (or one
+car alone: a time trial with the race's broadcast, as a race day runs them).
 
 Each racer keeps its own sensors (camera, stereo, LIDAR) and action space, and sees the other
 racers as it sees bot cars: in its cameras and in its LIDAR. The event's bot cars (head-to-bot
@@ -113,7 +114,7 @@ class HeadToHeadRace:
         substeps: int = 4,
     ) -> None:
         if not MIN_RACERS <= len(racers) <= MAX_RACERS:
-            raise ValueError(f"a race has {MIN_RACERS} to {MAX_RACERS} racers, not {len(racers)}")
+            raise ValueError(f"a race has {MIN_RACERS} to {MAX_RACERS} cars, not {len(racers)}")
         if not track.closed:
             raise TrackError(f"track {track.name!r} is not a loop: head-to-head races need one")
         race = race or RaceConfig()

@@ -18,7 +18,8 @@ from racing.rules import LapRecord, RaceTracker, Status
 from racing.sensors import CameraSensor
 from racing.simtrace import TraceRow
 
-MIN_RACERS, MAX_RACERS = 2, 4
+MIN_RACERS, MAX_RACERS = 1, 4
+"""One car alone is a time trial with the race's broadcast (a race day's solo run)."""
 SECTORS = 3
 """A lap is timed in three sectors, as motor racing's timing screens show it."""
 PURPLE, GREEN, YELLOW = "purple", "green", "yellow"
@@ -67,7 +68,7 @@ def grid_order(racers: int, round_number: int) -> list[int]:
     on pole, and each later round moves everyone one slot forward, the pole sitter to the
     back, so over ``racers`` rounds everyone starts from every slot once."""
     if not MIN_RACERS <= racers <= MAX_RACERS:
-        raise ValueError(f"a race has {MIN_RACERS} to {MAX_RACERS} racers, not {racers}")
+        raise ValueError(f"a race has {MIN_RACERS} to {MAX_RACERS} cars, not {racers}")
     shift = round_number % racers
     return [(slot + shift) % racers for slot in range(racers)]
 

@@ -328,6 +328,10 @@ class RaceJob(Job):
     results = models.JSONField(default=dict, blank=True)
     has_video = models.BooleanField(default=False)
     race_time_s = models.FloatField(default=0.0)
+    paced = models.BooleanField(default=False)
+    """Run at real time (a live race day's broadcast), not as fast as the worker can."""
+    broadcast_group = models.CharField(max_length=80, blank=True)
+    """A Channels group that gets the live frames besides the race's own (a race day's)."""
 
     def __str__(self) -> str:
         return self.title or f"race #{self.pk}"

@@ -95,7 +95,8 @@ def test_grid_order_gives_everyone_the_pole_once_over_as_many_rounds():
     assert rounds == [[0, 1, 2], [1, 2, 0], [2, 0, 1]]
     assert {r[0] for r in rounds} == {0, 1, 2}
     assert grid_order(2, 5) == [1, 0]
-    with pytest.raises(ValueError, match="2 to 4 racers"):
+    assert grid_order(1, 3) == [0]
+    with pytest.raises(ValueError, match="1 to 4 cars"):
         grid_order(5, 0)
 
 
@@ -243,8 +244,8 @@ def test_the_broadcast_view_draws_every_car_and_the_timing_tower(oval):
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"racers": 1}, "2 to 4 racers"),
-        ({"racers": 5}, "2 to 4 racers"),
+        ({"racers": 0}, "1 to 4 cars"),
+        ({"racers": 5}, "1 to 4 cars"),
         ({"race": RaceConfig(race_type=RaceType.OBJECT_AVOIDANCE)}, "bot cars or nothing"),
         ({"rules": RaceRules(laps=1)}, "time limit"),
         ({"grid": [0, 0]}, "every entry index once"),

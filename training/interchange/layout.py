@@ -152,6 +152,6 @@ class RaceKeys:
         return f"{self.car_folder(model_id)}model/model_metadata.json"
 
     @staticmethod
-    def frozen_checkpoint(scope: str, model_id: int) -> str:
-        """A league entry's frozen weights: ``league/<scope>/<model id>.zip``."""
-        return f"league/{_name(scope, 'league scope')}/{_name(model_id, 'model id')}.zip"
+    def frozen_checkpoint(scope: str, entry: int) -> str:
+        """A league entry's frozen weights: ``league/<scope>/<entry>.zip``."""
+        return f"league/{_name(scope, 'league scope')}/{_name(entry, 'entry id')}.zip"

@@ -51,7 +51,7 @@ from training.services.jobs import (
     model_settle,
     training_start,
 )
-from training.services.model_files import model_metadata
+from training.services.model_files import model_freeze, model_metadata
 from training.services.model_imports import model_import
 from training.services.models import model_clone, model_create, model_delete, model_update_reward
 from training.services.races import RacePlan, race_plan
@@ -113,6 +113,7 @@ __all__ = [
     "model_delete",
     "model_import",
     "model_mark_checkpoint",
+    "model_freeze",
     "model_metadata",
     "model_settle",
     "model_update_reward",

@@ -8,9 +8,11 @@ from __future__ import annotations
 import logging
 
 from training.errors import ServiceError
+from training.interchange.layout import RaceKeys
 from training.models import RacingModel
 from training.rl.metadata import ModelMetadata, build_metadata
 from training.storage import StoreError, StoreUnavailable
+from training.store import get_store, keys_for
 
 log = logging.getLogger(__name__)
 
@@ -56,3 +58,13 @@ def model_metadata(model: RacingModel) -> ModelMetadata:
         sensor=list(model.sensors),
         neural_network=model.neural_network,
     )
+
+
+def model_freeze(*, model: RacingModel, scope: str, entry: int) -> str:
+    """Copy the model's best checkpoint to ``league/<scope>/<entry>.zip`` in the store (a
+    league entry's weights, which later training or deleting the model does not touch);
+    returns that key. Raises the store's errors."""
+    key = RaceKeys.frozen_checkpoint(scope, entry)
+    store = get_store()
+    store.put_bytes(key, store.get_bytes(keys_for(model.pk).best))
+    return key

@@ -41,6 +41,33 @@ def race_plan(
     *,
     model_ids: Sequence[int],
     track_id: str,
+    solo: bool = False,
+    **conditions,
+) -> RacePlan:
+    """Check a race of ``model_ids`` (2-4 different models, each racing with its own sensors
+    and action space; with ``solo`` one alone, a race day's time trial) on ``track_id`` under
+    ``conditions`` (:func:`race_conditions`); raises :class:`ServiceError` naming what is
+    wrong."""
+    ids = list(model_ids)
+    least = MIN_RACERS if solo else 2
+    if not least <= len(ids) <= MAX_RACERS:
+        raise ServiceError(f"a race has {least} to {MAX_RACERS} models, not {len(ids)}",
+                           field="models")  # fmt: skip
+    if len(set(ids)) != len(ids):
+        raise ServiceError("a model can take only one place on the grid", field="models")
+    found = {model.pk: model for model in RacingModel.objects.filter(pk__in=ids)}
+    missing = [str(i) for i in ids if i not in found]
+    if missing:
+        raise ServiceError(f"no model with id {', '.join(missing)}", field="models")
+    race, settings = race_conditions(track_id=track_id, cars=len(ids), **conditions)
+    direction = conditions.get("direction", "native")
+    return RacePlan(tuple(found[i] for i in ids), track_id, direction, race, settings)
+
+
+def race_conditions(
+    *,
+    track_id: str,
+    cars: int,
     direction: str = "native",
     laps: int = 3,
     bots: int = 0,
@@ -51,19 +78,9 @@ def race_plan(
     crash_penalty_s: float = 5.0,
     time_limit_s: float | None = None,
     record_video: bool = True,
-) -> RacePlan:
-    """Check a race of ``model_ids`` (2-4 different models, each racing with its own sensors
-    and action space) on ``track_id``; raises :class:`ServiceError` naming what is wrong."""
-    ids = list(model_ids)
-    if not MIN_RACERS <= len(ids) <= MAX_RACERS:
-        raise ServiceError(f"a race has {MIN_RACERS} to {MAX_RACERS} models, not {len(ids)}",
-                           field="models")  # fmt: skip
-    if len(set(ids)) != len(ids):
-        raise ServiceError("a model can take only one place on the grid", field="models")
-    found = {model.pk: model for model in RacingModel.objects.filter(pk__in=ids)}
-    missing = [str(i) for i in ids if i not in found]
-    if missing:
-        raise ServiceError(f"no model with id {', '.join(missing)}", field="models")
+) -> tuple[RaceConfig, RaceSettings]:
+    """The race's bots and settings, checked for ``cars`` cars on ``track_id`` (a loop the
+    bots fit on, ahead of the grid); raises :class:`ServiceError`."""
     if direction not in ("native", "ccw", "cw"):
         raise ServiceError("direction must be native, ccw or cw", field="direction")
     tracks_sync_for([track_id])
@@ -74,16 +91,15 @@ def race_plan(
     if not track.closed:
         raise ServiceError(f"track {track_id!r} is not a loop: head-to-head races need one",
                            field="track_id")  # fmt: skip
+    race = RaceConfig()
     if bots:
         stored = race_settings("HEAD_TO_BOT", {"number_of_bots": bots, "bot_speed": bot_speed})
         race = RaceConfig.from_dict(stored)
         try:
-            clear = grid_length_m(len(ids))
+            clear = grid_length_m(cars)
             spread(track.length - clear, race.number_of_bots, race.min_bot_gap_m, None)
         except ValueError as exc:
             raise ServiceError(str(exc), field="bots") from None
-    else:
-        race = RaceConfig()
     try:
         settings = RaceSettings(
             laps=laps,
@@ -96,7 +112,28 @@ def race_plan(
         )
     except RaceError as exc:
         raise ServiceError(str(exc), field="laps") from None
-    return RacePlan(tuple(found[i] for i in ids), track_id, direction, race, settings)
+    return race, settings
+
+
+def race_start_entries(
+    *,
+    entries: list[dict],
+    track_id: str,
+    title: str = "",
+    paced: bool = False,
+    broadcast_group: str = "",
+    **conditions,
+) -> RaceJob:
+    """Queue a league race of entries already frozen by the league (``{"model", "name",
+    "checkpoint", "metadata", "tag"}``: the model may be deleted since, the race does not
+    need it); the league checked who may run it. Raises :class:`ServiceError`."""
+    if not MIN_RACERS <= len(entries) <= MAX_RACERS:
+        raise ServiceError(f"a race has {MIN_RACERS} to {MAX_RACERS} cars, not {len(entries)}")
+    race, settings = race_conditions(track_id=track_id, cars=len(entries), **conditions)
+    direction = conditions.get("direction", "native")
+    return _create(entries=entries, track_id=track_id, direction=direction, race=race,
+                   settings=settings, user=None, title=title, purpose="league", paced=paced,
+                   broadcast_group=broadcast_group, enqueue=True)  # fmt: skip
 
 
 def race_start(
@@ -106,12 +143,17 @@ def race_start(
     title: str = "",
     purpose: str = "race",
     checkpoints: dict[int, str] | None = None,
+    tags: dict[int, object] | None = None,
+    paced: bool = False,
+    broadcast_group: str = "",
     enqueue: bool = True,
 ) -> RaceJob:
     """Queue ``plan`` as a race job for an evaluation worker. A user races their own models;
     racing other people's takes staff rights, or a league service (``purpose="league"``)
     that checked the facilitator's role and froze each entry's weights (``checkpoints``:
-    model id → store key)."""
+    model id → store key). ``tags``: model id → what the caller knows the entry as (a
+    submission's id), kept in the entry. ``paced``: at real time, its frames also sent to
+    ``broadcast_group`` (a race day's broadcast page)."""
     owners = {model.owner_id for model in plan.models}
     mine = owners == {getattr(user, "pk", None)}
     if purpose != "league" and not mine and not getattr(user, "is_staff", False):
@@ -120,19 +162,29 @@ def race_start(
     entries = [{"model": m.pk, "name": m.name, "checkpoint": frozen.get(m.pk, "")}
                for m in plan.models]  # fmt: skip
     for entry, model in zip(entries, plan.models, strict=True):
+        if tags and model.pk in tags:
+            entry["tag"] = tags[model.pk]
         if entry["checkpoint"]:  # frozen: the metadata too, so the entry outlives its model
             entry["metadata"] = model_metadata(model).to_json()
-    settings = plan.settings
+    return _create(entries=entries, track_id=plan.track_id, direction=plan.direction,
+                   race=plan.race, settings=plan.settings, user=user, title=title,
+                   purpose=purpose, paced=paced, broadcast_group=broadcast_group,
+                   enqueue=enqueue)  # fmt: skip
+
+
+def _create(*, entries: list[dict], track_id: str, direction: str, race: RaceConfig,
+            settings: RaceSettings, user, title: str, purpose: str, paced: bool,
+            broadcast_group: str, enqueue: bool) -> RaceJob:  # fmt: skip
     with transaction.atomic():
         job = RaceJob.objects.create(
             owner=user if getattr(user, "pk", None) else None, title=title[:120],
-            purpose=purpose, entries=entries, track_id=plan.track_id,
-            direction=plan.direction, laps=settings.laps,
-            bots=plan.race.number_of_bots if plan.race.has_bots else 0,
-            bot_speed=plan.race.bot_speed if plan.race.has_bots else RACE_DEFAULT_BOT_SPEED,
+            purpose=purpose, entries=entries, track_id=track_id, direction=direction,
+            laps=settings.laps, bots=race.number_of_bots if race.has_bots else 0,
+            bot_speed=race.bot_speed if race.has_bots else RACE_DEFAULT_BOT_SPEED,
             seed=settings.seed, round_number=settings.round,
             off_track_penalty_s=settings.off_track_penalty_s,
             crash_penalty_s=settings.crash_penalty_s, time_limit_s=settings.time_limit_s,
+            paced=paced, broadcast_group=broadcast_group[:80],
         )  # fmt: skip
         if enqueue:
             enqueue_after_commit(job, dispatch.EVALUATE_RACE)

@@ -116,7 +116,11 @@ def run_race_job(race_id: int, worker: str = "", *, paced: bool = False) -> str:
     if job is None:
         return "skipped"
     set_torch_threads(1)
-    broadcast = RaceBroadcast(live.job_group("race", job.pk), paced=paced)
+    groups = [
+        live.job_group("race", job.pk),
+        *([job.broadcast_group] if job.broadcast_group else []),
+    ]
+    broadcast = RaceBroadcast(groups, paced=paced or job.paced)
     store, keys = get_store(), RaceKeys(job.pk)
     try:
         entries = job_entries(job)

@@ -52,14 +52,16 @@ def race_timing(race: HeadToHeadRace) -> dict:
 
 
 class RaceBroadcast:
-    """``frame(rgb, race)`` for :func:`training.rl.race.run_race`'s ``on_frame``."""
+    """``frame(rgb, race)`` for :func:`training.rl.race.run_race`'s ``on_frame``: each frame
+    encoded once and sent to every group in ``groups`` (the race's own, a race day's)."""
 
-    def __init__(self, group: str, *, paced: bool = False) -> None:
-        self.group = group
+    def __init__(self, groups: list[str], *, paced: bool = False) -> None:
+        self.groups = groups
         self.paced = paced
-        self.publisher = live.FramePublisher(group)
+        self.publishers = [live.FramePublisher(group) for group in groups]
         self._next = time.monotonic()
         self.encodes = 0
+        self.frames = 0
 
     def frame(self, rgb: np.ndarray, race: HeadToHeadRace) -> None:
         if self.paced:
@@ -69,14 +71,18 @@ class RaceBroadcast:
                 time.sleep(wait)
             else:
                 self._next = time.monotonic()  # behind: never race to catch up
-        if not (self.paced or self.publisher.watched()):
+        self.frames += 1
+        if not (self.paced or any(p.watched() for p in self.publishers)):
             return
         ok, jpeg = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         if not ok:
             return
         self.encodes += 1
-        self.publisher.offer({"type": "race.frame", "frame": base64.b64encode(jpeg).decode(),
-                              "timing": race_timing(race)})  # fmt: skip
+        message = {"type": "race.frame", "frame": base64.b64encode(jpeg).decode(),
+                   "timing": race_timing(race)}  # fmt: skip
+        for publisher in self.publishers:
+            publisher.offer(message)
 
     def close(self) -> None:
-        self.publisher.close()
+        for publisher in self.publishers:
+            publisher.close()

@@ -1,0 +1,241 @@
+"""Head-to-head events: qualifying, then a single-elimination bracket of one-against-one races.
+
+Qualifying is the event's own submissions (the 2020 league's: 3 laps against 6 bots at
+0.75 m/s, total time with penalties; the event's settings). :func:`bracket_seed` puts the top
+4, 8, 16 or 32 qualifiers (each racer's best ranked submission, in leaderboard order) into a
+bracket (:mod:`leaderboard.bracket`: 1 against the last, byes to the top seeds), and every
+ready match becomes a race job (:func:`training.services.races.race_start`) of the two frozen
+entries. When a race ends (:func:`bracket_race_finished`, on training's ``race_finished``) its
+winner goes through and the next matches start, so a bracket runs to its champion unattended.
+
+No bracket is ever left stuck: a match whose race failed is run again once, then the better
+seed goes through; a race nobody finished is won by the car furthest on (the race's winner),
+or, if no car moved, by the better seed; a withdrawn racer's opponent goes through without a
+race. Each such decision is written on the match (``note``).
+"""
+
+from __future__ import annotations
+
+import logging
+
+from django.db import transaction
+
+from leaderboard import bracket as brackets
+from leaderboard.access import LeagueError, can_manage_event
+from leaderboard.live import bracket_changed
+from leaderboard.models import BracketMatch, Event, Notification, RaceDaySlot, Submission
+from leaderboard.selectors import leaderboard_rows
+from training.models import JobStatus, RaceJob, RaceType
+from training.services import ServiceError
+from training.services.races import race_start_entries
+
+log = logging.getLogger(__name__)
+BRACKET_SIZES = (4, 8, 16, 32)
+MAX_RACE_ATTEMPTS = 2
+
+
+def _state(event: Event) -> tuple[brackets.Bracket, list[int], set[int]]:
+    data = event.bracket
+    return (brackets.Bracket.from_dict(data["bracket"]), list(data["seeds"]),
+            set(data.get("withdrawn", [])))  # fmt: skip
+
+
+def _save(event: Event, bracket: brackets.Bracket, seeds: list[int], withdrawn: set[int]) -> None:
+    event.bracket = {"bracket": bracket.to_dict(), "seeds": seeds, "withdrawn": sorted(withdrawn)}
+    event.save(update_fields=["bracket"])
+
+
+def bracket_seed(*, event: Event, user) -> brackets.Bracket:
+    """Seed the event's bracket from its qualifying leaderboard and start the first races.
+    Refused unless the user runs the event, the event has a bracket and at least two ranked
+    qualifiers, and it is not seeded yet."""
+    if not can_manage_event(user, event):
+        raise LeagueError("only the event's organiser or a race facilitator runs its bracket")
+    if event.bracket_size not in BRACKET_SIZES:
+        raise LeagueError("this event has no bracket (set its size to 4, 8, 16 or 32)")
+    with transaction.atomic():
+        event = Event.objects.select_for_update().get(pk=event.pk)
+        if event.bracket:
+            raise LeagueError("the bracket is already seeded")
+        rows = leaderboard_rows(event)
+        if len(rows) < 2:
+            raise LeagueError("a bracket needs at least two ranked qualifiers")
+        bracket = brackets.seed_bracket(len(rows), cap=event.bracket_size)
+        seeds = [row.submission_id for row in rows[: bracket.entries]]
+        _save(event, bracket, seeds, set())
+        _advance(event)
+    return bracket
+
+
+def bracket_withdraw(*, event: Event, user, submission: Submission) -> None:
+    """Withdraw ``submission`` from the bracket (its racer, or whoever runs the event): a match
+    not yet raced goes to the opponent; a race already queued runs with the car out."""
+    if submission.racer_id != user.pk and not can_manage_event(user, event):
+        raise LeagueError("only the racer or the event's organiser can withdraw an entry")
+    with transaction.atomic():
+        event = Event.objects.select_for_update().get(pk=event.pk)
+        if not event.bracket:
+            raise LeagueError("the bracket is not seeded yet")
+        bracket, seeds, withdrawn = _state(event)
+        if submission.pk not in seeds:
+            raise LeagueError("this entry is not in the bracket")
+        withdrawn.add(submission.pk)
+        _save(event, bracket, seeds, withdrawn)
+        for match in BracketMatch.objects.filter(event=event, winner__isnull=True,
+                                                 race__isnull=False):  # fmt: skip
+            race = match.race
+            if race.status == JobStatus.QUEUED and submission.pk in (match.top_id, match.bottom_id):
+                entries = race.entries
+                for entry in entries:
+                    if entry.get("tag") == submission.pk:
+                        entry["withdrawn"] = "its racer withdrew"
+                RaceJob.objects.filter(pk=race.pk).update(entries=entries)
+        _advance(event)
+
+
+def bracket_race_finished(*, race_id: int) -> BracketMatch | None:
+    """A bracket's race ended: its winner goes through and the next matches start (idempotent:
+    a match already decided is left alone). Returns the match, if the race was one."""
+    match = BracketMatch.objects.filter(race_id=race_id).select_related("race").first()
+    if match is None:
+        return None
+    with transaction.atomic():
+        event = Event.objects.select_for_update().get(pk=match.event_id)
+        match = BracketMatch.objects.select_related("race").get(pk=match.pk)
+        race = match.race
+        if match.winner_id is not None or race is None or race.pk != race_id:
+            return match
+        if race.status == JobStatus.COMPLETED:
+            winner, note = _race_winner(match, race)
+            _decide(event, match, winner, note)
+        elif race.status in (JobStatus.FAILED, JobStatus.CANCELED):
+            if match.attempts < MAX_RACE_ATTEMPTS:
+                _launch(event, match)
+            else:
+                _decide(event, match, match.top_id, f"the race could not be run ({race.error}); "
+                        "the better qualifier goes through")  # fmt: skip
+        _advance(event)
+    return match
+
+
+def _race_winner(match: BracketMatch, race: RaceJob) -> tuple[int | None, str]:
+    winner_model = race.results.get("winner") if isinstance(race.results, dict) else None
+    for entry in race.entries:
+        if winner_model is not None and entry.get("model") == winner_model:
+            car = next((c for c in race.car_rows if c.get("model") == winner_model), {})
+            note = "" if car.get("finished") else "won on distance at the time limit"
+            return entry.get("tag"), note
+    return match.top_id, "no car moved; the better qualifier goes through"
+
+
+def _decide(event: Event, match: BracketMatch, winner: int | None, note: str) -> None:
+    bracket, seeds, withdrawn = _state(event)
+    seed = seeds.index(winner) + 1 if winner in seeds else None
+    if seed is None:
+        return
+    bracket = brackets.record_winner(bracket, match.round, match.index, seed)
+    _save(event, bracket, seeds, withdrawn)
+    match.winner_id, match.note = winner, note[:255]
+    match.save(update_fields=["winner", "note"])
+    transaction.on_commit(lambda: bracket_changed(event.pk))
+    champion = brackets.champion(bracket)
+    if champion is not None:
+        sub = Submission.objects.get(pk=seeds[champion - 1])
+        Notification.objects.create(user=sub.racer, message=f"You won the {event.name} bracket!",
+                                    link=f"/league/events/{event.pk}/bracket/")  # fmt: skip
+
+
+def _advance(event: Event) -> None:
+    """Start (or queue for the race day) every ready match that has no race yet; a match
+    against a withdrawn racer is decided at once."""
+    for _ in range(64):  # decisions can make more matches ready; a bracket has < 64 rounds
+        bracket, seeds, withdrawn = _state(event)
+        progressed = False
+        for ready in brackets.next_matches(bracket):
+            top, bottom = seeds[ready.top - 1], seeds[ready.bottom - 1]
+            match, _ = BracketMatch.objects.get_or_create(
+                event=event, round=ready.round, index=ready.index,
+                defaults={"top_id": top, "bottom_id": bottom},
+            )  # fmt: skip
+            if top in withdrawn or bottom in withdrawn:
+                through = bottom if top in withdrawn else top
+                _decide(event, match, through, "the opponent withdrew")
+                progressed = True
+                break
+            if match.race_id is None:
+                if event.bracket_on_race_day:
+                    if not RaceDaySlot.objects.filter(match=match).exists():
+                        _queue_on_race_day(event, match)
+                else:
+                    _launch(event, match)
+        if not progressed:
+            return
+
+
+def _queue_on_race_day(event: Event, match: BracketMatch) -> None:
+    last = RaceDaySlot.objects.filter(event=event).order_by("-position").first()
+    RaceDaySlot.objects.create(event=event, match=match, position=(last.position + 1) if last
+                               else 1)  # fmt: skip
+
+
+def match_race(event: Event, match: BracketMatch, *, paced: bool = False,
+               broadcast_group: str = "") -> RaceJob:  # fmt: skip
+    """A race job of the match's two frozen entries (top seed on pole in odd rounds, the other
+    in even ones: the grid swaps between rounds)."""
+    subs = [match.top, match.bottom]
+    return entry_race(event, subs, laps=event.bracket_laps, round_number=match.round - 1,
+                      title=f"{event.name}: round {match.round}, match {match.index + 1}",
+                      paced=paced, broadcast_group=broadcast_group)  # fmt: skip
+
+
+def _launch(event: Event, match: BracketMatch) -> None:
+    try:
+        race = match_race(event, match)
+    except (LeagueError, ServiceError) as exc:
+        message = getattr(exc, "message", str(exc))
+        _decide(event, match, match.top_id, f"the race could not start ({message}); "
+                "the better qualifier goes through")  # fmt: skip
+        return
+    match.race, match.attempts = race, match.attempts + 1
+    match.save(update_fields=["race", "attempts"])
+    transaction.on_commit(lambda: bracket_changed(event.pk))
+
+
+def entry_race(
+    event: Event,
+    submissions: list[Submission],
+    *,
+    laps: int,
+    round_number: int = 0,
+    title: str = "",
+    paced: bool = False,
+    broadcast_group: str = "",
+) -> RaceJob:
+    """A race job of ``submissions`` (one alone: a solo run) on the event's track, with its
+    bots and penalties, each car its frozen entry (so deleting or retraining a model changes
+    nothing here). Raises :class:`LeagueError`."""
+    entries = []
+    for sub in submissions:
+        model_id = sub.entered_model_id or sub.model_id
+        if model_id is None:
+            raise LeagueError(f"{sub.model_name}: no model was recorded for this entry")
+        entries.append(
+            {
+                "model": model_id,
+                "name": sub.model_name,
+                "tag": sub.pk,
+                "checkpoint": sub.frozen_checkpoint,
+                "metadata": sub.model_metadata,
+            }
+        )
+    try:
+        return race_start_entries(
+            entries=entries, track_id=event.track_id, direction=event.direction, laps=laps,
+            bots=event.bot_count if event.race_type == RaceType.HEAD_TO_BOT else 0,
+            bot_speed=event.bot_speed_mps, round_number=round_number, title=title,
+            off_track_penalty_s=event.off_track_penalty_s,
+            crash_penalty_s=event.collision_penalty_s, paced=paced,
+            broadcast_group=broadcast_group,
+        )  # fmt: skip
+    except ServiceError as exc:
+        raise LeagueError(exc.message) from None
