@@ -19,7 +19,8 @@ EVENT_FIELDS = (
     "season", "name", "description", "track_id", "direction", "race_type", "number_of_objects",
     "randomize_objects", "bot_count", "bot_speed_mps", "bot_lane_changes", "opens_at",
     "closes_at", "division", "ranking_method", "min_laps", "max_laps", "off_track_penalty_s",
-    "collision_penalty_s", "max_resets", "max_submissions_per_racer",
+    "collision_penalty_s", "max_resets", "max_submissions_per_racer", "bracket_size",
+    "bracket_laps", "bracket_on_race_day",
 )  # fmt: skip
 RULE_FIELDS = (
     "track_id", "direction", "race_type", "ranking_method", "min_laps", "max_laps",
@@ -83,6 +84,10 @@ def _check_event(event: Event) -> None:
         raise LeagueError("allow 1-999 submissions per racer", field="max_submissions_per_racer")
     if event.division not in Division.values:
         raise LeagueError("unknown division", field="division")
+    if event.bracket_size not in (0, 4, 8, 16, 32):
+        raise LeagueError("a bracket takes the top 4, 8, 16 or 32", field="bracket_size")
+    if not 1 <= event.bracket_laps <= 10:
+        raise LeagueError("a bracket race runs 1 to 10 laps", field="bracket_laps")
 
 
 def event_create(*, organiser, is_private: bool, **fields: Any) -> Event:

@@ -81,6 +81,19 @@ class EventForm(forms.Form):
     bot_speed_mps = forms.FloatField(label="Bot speed (m/s)", min_value=0.2, max_value=6.0,
                                      initial=1.0)  # fmt: skip
     bot_lane_changes = forms.BooleanField(required=False)
+    bracket_size = forms.TypedChoiceField(
+        label="Head-to-head bracket", coerce=int, initial=0,
+        choices=[(0, "None"), (4, "Top 4"), (8, "Top 8"), (16, "Top 16"), (32, "Top 32")],
+        help_text="After qualifying, the best qualifiers race one against one, 1 against the "
+        "last, until one is left.",
+    )  # fmt: skip
+    bracket_laps = forms.IntegerField(label="Laps per bracket race", min_value=1, max_value=10,
+                                      initial=2)  # fmt: skip
+    bracket_on_race_day = forms.BooleanField(
+        label="Bracket races wait for the race day", required=False,
+        help_text="On: each match joins the race-day queue and a facilitator launches it live. "
+        "Off: matches run as soon as they are ready.",
+    )  # fmt: skip
 
     def __init__(self, *args, public: bool, **kwargs) -> None:
         super().__init__(*args, **kwargs)

@@ -157,7 +157,7 @@ def _advance(event: Event) -> None:
                 event=event, round=ready.round, index=ready.index,
                 defaults={"top_id": top, "bottom_id": bottom},
             )  # fmt: skip
-            if top in withdrawn or bottom in withdrawn:
+            if (top in withdrawn or bottom in withdrawn) and match.race_id is None:
                 through = bottom if top in withdrawn else top
                 _decide(event, match, through, "the opponent withdrew")
                 progressed = True

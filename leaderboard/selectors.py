@@ -8,13 +8,16 @@ from django.db.models import Prefetch, Q, QuerySet
 from django.urls import reverse
 from django.utils import timezone
 
+from leaderboard import bracket as bracket_lib
 from leaderboard import ranking
 from leaderboard.access import can_manage_event, can_view_event, is_facilitator
 from leaderboard.divisions import division_for
 from leaderboard.models import (
+    BracketMatch,
     Event,
     EventEntrant,
     Notification,
+    RaceDaySlot,
     RacerProfile,
     Season,
     Submission,
@@ -172,3 +175,77 @@ def can_watch_submission(user, submission: Submission) -> bool:
     if can_manage_event(user, event):
         return True
     return submission.status == Submission.Status.RANKED and can_view_event(user, event)
+
+
+@dataclass
+class MatchView:
+    """One match of the bracket page: its two entries (alias and model), its state."""
+
+    round: int
+    index: int
+    top: str
+    bottom: str
+    top_seed: int | None
+    bottom_seed: int | None
+    winner: str
+    state: str
+    note: str
+    race_id: int | None
+    has_video: bool
+
+
+def bracket_rounds(event: Event) -> list[list[MatchView]]:
+    """The bracket, round by round, as the page shows it (empty before it is seeded)."""
+    if not event.bracket:
+        return []
+    state = bracket_lib.Bracket.from_dict(event.bracket["bracket"])
+    seeds = list(event.bracket["seeds"])
+    subs = {s.pk: s for s in Submission.objects.filter(pk__in=seeds).select_related("racer")}
+    aliases = {p.user_id: p.alias for p in RacerProfile.objects.filter(
+        user_id__in=[s.racer_id for s in subs.values()])}  # fmt: skip
+    matches = {(m.round, m.index): m for m in BracketMatch.objects.filter(event=event)
+               .select_related("race")}  # fmt: skip
+
+    def label(seed: int | None) -> str:
+        if seed is None:
+            return ""
+        sub = subs.get(seeds[seed - 1])
+        if sub is None:
+            return f"Seed {seed}"
+        return f"{aliases.get(sub.racer_id) or f'racer-{sub.racer_id}'} · {sub.model_name}"
+
+    withdrawn = set(event.bracket.get("withdrawn", []))
+    rounds = []
+    for games in state.rounds:
+        row = []
+        for game in games:
+            record = matches.get((game.round, game.index))
+            race = record.race if record else None
+            if game.bye:
+                status = "bye"
+            elif game.winner is not None:
+                status = "decided"
+            elif race is not None and race.status in ("INITIALIZING", "IN_PROGRESS"):
+                status = "racing"
+            elif race is not None:
+                status = "queued"
+            else:
+                status = "waiting"
+            top_out = game.top is not None and seeds[game.top - 1] in withdrawn
+            bottom_out = game.bottom is not None and seeds[game.bottom - 1] in withdrawn
+            row.append(MatchView(
+                round=game.round, index=game.index,
+                top=label(game.top) + (" (withdrawn)" if top_out else ""),
+                bottom=label(game.bottom) + (" (withdrawn)" if bottom_out else ""),
+                top_seed=game.top, bottom_seed=game.bottom, winner=label(game.winner),
+                state=status, note=record.note if record else "",
+                race_id=race.pk if race else None, has_video=bool(race and race.has_video),
+            ))  # fmt: skip
+        rounds.append(row)
+    return rounds
+
+
+def race_day_queue(event: Event) -> list[RaceDaySlot]:
+    """The race day's turns in order, with what the page shows of each."""
+    return list(RaceDaySlot.objects.filter(event=event).select_related(
+        "submission", "match__top", "match__bottom", "race"))  # fmt: skip

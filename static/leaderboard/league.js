@@ -101,6 +101,34 @@
   connect();
 })();
 
+// The bracket page: the same event websocket says when a race of the bracket started or ended;
+// the page fetches its rounds again.
+(function () {
+  "use strict";
+  const bracket = document.querySelector("[data-bracket]");
+  if (!bracket) return;
+  const live = document.querySelector("[data-live-status]");
+  let delay = 1000;
+  function refresh() {
+    fetch(bracket.dataset.fragmentUrl, { credentials: "same-origin" })
+      .then((r) => (r.ok ? r.text() : null))
+      .then((html) => { if (html !== null) bracket.innerHTML = html; })
+      .catch(() => {});
+  }
+  function connect() {
+    const scheme = location.protocol === "https:" ? "wss" : "ws";
+    const socket = new WebSocket(`${scheme}://${location.host}/ws/league/events/${bracket.dataset.eventId}/`);
+    socket.onopen = () => { delay = 1000; if (live) { live.dataset.state = "live"; live.textContent = "Live"; } };
+    socket.onmessage = (e) => { if (JSON.parse(e.data).type === "bracket") refresh(); };
+    socket.onclose = () => {
+      if (live) { live.dataset.state = "off"; live.textContent = "Reconnecting…"; }
+      setTimeout(connect, delay);
+      delay = Math.min(delay * 2, 30000);
+    };
+  }
+  connect();
+})();
+
 // Small behaviours without inline handlers (the Content Security Policy allows no inline code).
 document.addEventListener("submit", (event) => {
   const question = event.target.dataset && event.target.dataset.confirm;

@@ -12,8 +12,8 @@ from training.interchange.export import (
     build_virtual_model_archive,
     export_onnx,
 )
-from training.interchange.layout import evaluation_stamp
-from training.models import EvaluationJob, RacingModel
+from training.interchange.layout import RaceKeys, evaluation_stamp
+from training.models import EvaluationJob, RaceJob, RacingModel
 from training.rl.checkpoints import CheckpointError, load_checkpoint
 from training.services.model_files import (
     TRAINING_PARAMS,
@@ -154,6 +154,18 @@ def evaluation_video(evaluation: EvaluationJob) -> Media:
     if not evaluation.has_video:
         raise ServiceError("this evaluation has no video")
     store, key = get_store(), keys_for(evaluation.model_id).video(evaluation.pk)
+    try:
+        size = store.stat_size(key)
+    except StoreError as exc:
+        raise store_failure(exc, "the video could not be read") from None
+    return Media(size, lambda start, length: store.get_range(key, start, length))
+
+
+def race_video(race: RaceJob) -> Media | None:
+    """A race's broadcast MP4 as ranged reads from the store; None when it has none."""
+    if not race.has_video:
+        return None
+    store, key = get_store(), RaceKeys(race.pk).video
     try:
         size = store.stat_size(key)
     except StoreError as exc:

@@ -1,0 +1,555 @@
+"""A live race day as its spectators get it: a 2-car head-to-bot race with 6 bots, broadcast at
+real time to 100 websocket viewers of a public event, all on this machine.
+
+    .venv/bin/python bench/bench_race.py [--spectators 100] [--seconds 30] [--seeds 1]
+                                         [--track racecraft_oval] [--no-video] [--redis-url URL]
+
+The cars are what a user gets with the console's defaults: untrained PPO models on the
+network :func:`training.services.models.model_create` picks by default, DeepRacer's default
+discrete action space (:data:`racing.actions.DEFAULT_DISCRETE`); car 1 has the front camera,
+car 2 stereo cameras and LIDAR (DeepRacer's guidance for head-to-head racing). 6 bots drive at
+0.75 m/s. Torch runs one thread, as in the worker.
+
+Each seed races twice in this process, for ``--seconds`` of race clock each (stopped after
+``--seconds`` x 15 steps: a race's own time limit is at least 10 s):
+
+- **unpaced** (the baseline): nobody watches, no video: the simulation and the policies as fast
+  as they go (``sim steps/s``);
+- **live**: as a race day's evaluation worker runs it (:func:`training.worker.race.run_race_job`):
+  :class:`training.worker.racelive.RaceBroadcast` paced at real time (15 frames/s), each
+  1280x720 frame JPEG-encoded once and sent once to the event's broadcast group, the MP4
+  recorded (``--no-video``: not), while ``--spectators`` websocket clients (one child process,
+  asyncio, raw RFC 6455: they time each frame message and read no further) watch
+  ``/ws/league/events/<id>/broadcast/`` as anonymous visitors of a public event, through a
+  real daphne serving ``console.asgi`` and a Channels layer on Redis (an embedded Redis unless
+  ``--redis-url``; every key under a random prefix, deleted at the end). The database is a
+  fresh SQLite file in a temporary folder (the event and its organiser; nothing else touches
+  it during the race).
+
+The window of a live race starts 1 s after its first frame was encoded (the first second, while
+viewers' queues settle, is left out) and ends when the race returns. Per viewer: frames
+received in the window, frames/s over it, the longest gap between two frames (the gap from its
+last frame to the window's end included). Printed: the table per seed and run (steps, race
+clock, wall s, steps/s, race CPU ms/step, frames encoded/sent, viewers' frames and gaps), the
+CPU seconds of each process during the live race (race, daphne, viewers, Redis) and the
+machine (CPU, cores, load average before and after). The viewers share this machine's 2 cores
+with the race and daphne; on a real race day they are elsewhere.
+
+Last line (medians over the seeds, worst gap over all): ``race_fps=`` frames/s delivered to the
+median viewer (target >= 14), ``paced_fps=`` frames/s the race itself showed, ``max_gap_s=``
+(target <= 1.0), ``encodes_per_frame=`` JPEG encodes / frames shown (<= 1.05: one encode
+however many watch), ``sim_steps_per_s=`` the unpaced race's steps per second of wall time,
+``realtime=`` race_fps / 15, and ``ratio=`` the live race's CPU per step over the unpaced
+one's, both measured in this run (what broadcasting, the MP4 and pacing cost the worker).
+Steps and frames do not depend on the machine; wall times, frames/s and gaps do. The machine
+may be shared: say so when you quote the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import base64
+import json
+import os
+import secrets
+import signal
+import statistics
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import urlsplit
+
+ROOT = Path(__file__).resolve().parents[1]
+REALTIME_FPS = 15.0
+"""Frames (and steps) per second of a race shown at real time: racelive.FRAME_S's inverse."""
+SETTLE_S = 1.0
+"""Seconds after the first frame left out of the window."""
+DRAIN_S = 2.0
+"""Seconds the viewers keep listening after the race returns (frames in flight)."""
+CONNECT_TIMEOUT_S = 90.0
+START_TIMEOUT_S = 90.0
+CARS = (("FRONT_FACING_CAMERA",), ("STEREO_CAMERAS", "LIDAR"))
+BOTS, BOT_SPEED_MPS = 6, 0.75
+FRAME_PREFIX = b'{"type": "frame"'
+READY = "READY"
+
+
+# ---------------------------------------------------------------------------- the figures
+@dataclass
+class Viewer:
+    """One viewer's window: frames, frames/s and the longest gap (seconds)."""
+
+    frames: int
+    fps: float
+    max_gap_s: float
+
+
+def viewer_window(arrivals: list[float], start: float, end: float) -> Viewer:
+    """A viewer's frames in the window ``[start, end]`` (monotonic seconds): how many, per
+    second, and the longest gap between two of them; the gap from its last frame to ``end``
+    counts, and so does the one that runs into the window from before it (or from ``start``)."""
+    inside = [t for t in arrivals if start <= t <= end]
+    before = [t for t in arrivals if t < start]
+    points = [before[-1] if before else start, *inside, end]
+    gaps = [b - a for a, b in zip(points, points[1:], strict=False)]
+    span = end - start
+    return Viewer(len(inside), len(inside) / span if span > 0 else 0.0, max(gaps, default=span))
+
+
+@dataclass
+class Live:
+    """The live run's viewers and broadcast."""
+
+    viewers: list[Viewer]
+    connected: int
+    wanted: int
+    frames: int
+    encodes: int
+    sent: int
+    window_s: float
+    received_total: list[int] = field(default_factory=list)
+    cpu_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def fps(self) -> float:
+        """Frames/s of the median viewer (0 when none connected)."""
+        return statistics.median(v.fps for v in self.viewers) if self.viewers else 0.0
+
+    @property
+    def max_gap_s(self) -> float:
+        return max((v.max_gap_s for v in self.viewers), default=float("inf"))
+
+    @property
+    def encodes_per_frame(self) -> float:
+        return self.encodes / self.frames if self.frames else 0.0
+
+
+def live_result(arrivals: list[list[float]], first_frame: float, end: float, *, wanted: int,
+                frames: int, encodes: int, sent: int) -> Live:  # fmt: skip
+    """What the viewers got: ``arrivals`` one list of monotonic frame times per connected
+    viewer; the window runs from :data:`SETTLE_S` after ``first_frame`` to ``end``."""
+    start = first_frame + SETTLE_S
+    viewers = [viewer_window(times, start, end) for times in arrivals]
+    return Live(viewers=viewers, connected=len(arrivals), wanted=wanted, frames=frames,
+                encodes=encodes, sent=sent, window_s=max(0.0, end - start),
+                received_total=[len(times) for times in arrivals])  # fmt: skip
+
+
+@dataclass
+class Race:
+    """One race: its steps and clock, wall and CPU seconds, what the cars did; ``live`` for a
+    broadcast one."""
+
+    seed: int
+    steps: int
+    clock_s: float
+    wall_s: float
+    cpu_s: float
+    cars: list[str]
+    live: Live | None = None
+
+    @property
+    def steps_per_s(self) -> float:
+        return self.steps / self.wall_s if self.wall_s else 0.0
+
+    @property
+    def cpu_ms_per_step(self) -> float:
+        return 1000.0 * self.cpu_s / self.steps if self.steps else 0.0
+
+
+def median(values: list[float]) -> float:
+    return float(statistics.median(values)) if values else float("nan")
+
+
+def last_line(pairs: list[tuple[Race, Race]], spectators: int) -> str:
+    """The key figures: medians over the seeds of (unpaced, live) pairs, worst gap of all."""
+    lives = [live.live for _, live in pairs if live.live is not None]
+    fps = median([r.fps for r in lives])
+    paced = median([live.steps_per_s for _, live in pairs])
+    gap = max((r.max_gap_s for r in lives), default=float("inf"))
+    encodes = max((r.encodes_per_frame for r in lives), default=0.0)
+    sim = median([base.steps_per_s for base, _ in pairs])
+    ratio = median([live.cpu_ms_per_step / base.cpu_ms_per_step
+                    for base, live in pairs if base.cpu_ms_per_step])  # fmt: skip
+    connected = min((r.connected for r in lives), default=0)
+    frames = median([statistics.median(v.frames for v in r.viewers) for r in lives if r.viewers])
+    return (f"race_fps={fps:.2f} paced_fps={paced:.2f} max_gap_s={gap:.2f} "
+            f"encodes_per_frame={encodes:.3f} sim_steps_per_s={sim:.1f} "
+            f"realtime={fps / REALTIME_FPS:.3f} ratio={ratio:.2f} "
+            f"frames_per_viewer={frames:.0f} spectators={connected}/{spectators} "
+            f"seeds={len(pairs)}")  # fmt: skip
+
+
+# --------------------------------------------------------------------------- the viewers
+def mask(payload: bytes) -> bytes:
+    """A client frame's masking (RFC 6455 5.3): a random key, then the payload XORed with it."""
+    key = os.urandom(4)
+    return key + bytes(b ^ key[i % 4] for i, b in enumerate(payload))
+
+
+async def view(url: str, times: list[float], opened: asyncio.Future) -> None:
+    """One anonymous viewer: the handshake (with the Origin a browser sends), then the time of
+    every complete frame message; pongs for daphne's pings. Sets ``opened`` (True, or the
+    exception) once the handshake ended."""
+    parts = urlsplit(url)
+    host, port = parts.hostname or "127.0.0.1", parts.port or 80
+    try:
+        reader, writer = await asyncio.open_connection(host, port, limit=1 << 20)
+        key = base64.b64encode(os.urandom(16)).decode()
+        writer.write(f"GET {parts.path} HTTP/1.1\r\nHost: {host}:{port}\r\n"
+                     "Upgrade: websocket\r\nConnection: Upgrade\r\n"
+                     f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+                     f"Origin: http://{host}:{port}\r\n\r\n".encode())  # fmt: skip
+        head = await reader.readuntil(b"\r\n\r\n")
+        if b" 101 " not in head.split(b"\r\n", 1)[0]:
+            raise ConnectionError(head.split(b"\r\n", 1)[0].decode(errors="replace"))
+    except (OSError, asyncio.IncompleteReadError, ConnectionError) as exc:
+        opened.set_result(exc)
+        return
+    opened.set_result(True)
+    first = b""  # the start of the message being received (fragments)
+    try:
+        while True:
+            b0, b1 = await reader.readexactly(2)
+            length = b1 & 0x7F
+            if length == 126:
+                (length,) = struct.unpack("!H", await reader.readexactly(2))
+            elif length == 127:
+                (length,) = struct.unpack("!Q", await reader.readexactly(8))
+            payload = await reader.readexactly(length)
+            opcode, fin = b0 & 0x0F, b0 & 0x80
+            if opcode == 0x8:  # close
+                return
+            if opcode == 0x9:  # ping
+                writer.write(bytes([0x8A, 0x80 | len(payload)]) + mask(payload))
+                continue
+            if opcode in (0x1, 0x0):
+                first = payload[: len(FRAME_PREFIX)] if opcode == 0x1 else first
+                if fin and first.startswith(FRAME_PREFIX):
+                    times.append(time.monotonic())
+    except (OSError, asyncio.IncompleteReadError):
+        return
+    finally:
+        writer.close()
+
+
+async def spectate(url: str, count: int, out: Path) -> None:
+    """``count`` viewers of ``url``; prints ``READY <connected> <failed> <first error>`` once
+    every handshake ended, listens until SIGTERM, then writes the connected viewers' frame
+    times to ``out`` as JSON."""
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    loop.add_signal_handler(signal.SIGTERM, stop.set)
+    times: list[list[float]] = [[] for _ in range(count)]
+    opened = [loop.create_future() for _ in range(count)]
+    tasks = []
+    for i in range(count):  # a few at a time, as people arrive
+        tasks.append(asyncio.create_task(view(url, times[i], opened[i])))
+        if i % 10 == 9:
+            await asyncio.sleep(0.05)
+    done, _ = await asyncio.wait(opened, timeout=CONNECT_TIMEOUT_S)
+    results = [f.result() if f in done else TimeoutError("no handshake") for f in opened]
+    ok = [r is True for r in results]
+    errors = [repr(r) for r in results if r is not True]
+    print(f"{READY} {sum(ok)} {count - sum(ok)} {errors[0] if errors else ''}", flush=True)
+    await stop.wait()
+    for task in tasks:
+        task.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
+    out.write_text(json.dumps([t for t, good in zip(times, ok, strict=True) if good]))
+
+
+# ------------------------------------------------------------------------------ the races
+def race_entries(seed: int) -> list:
+    """The two cars, with the console's default network and action space."""
+    import inspect
+
+    import torch
+
+    from racing.actions import DEFAULT_DISCRETE
+    from racing.headtohead import Racer
+    from training.rl.checkpoints import new_model
+    from training.rl.evaluation import sb3_policy
+    from training.rl.metadata import build_metadata
+    from training.rl.race import RaceEntry
+    from training.services.models import model_create
+
+    network = inspect.signature(model_create).parameters["neural_network"].default
+    actions = [dict(a) for a in DEFAULT_DISCRETE]
+    entries = []
+    for index, sensors in enumerate(CARS):
+        torch.manual_seed(seed * 10 + index)  # the untrained weights, per seed
+        metadata = build_metadata(action_space=actions, sensor=list(sensors),
+                                  neural_network=network)  # fmt: skip
+        name = f"Car {index + 1} ({' + '.join(sensors)})"
+        entries.append(RaceEntry(key=index, name=name,
+                                 racer=Racer(sensors=sensors, action_space=actions, name=name),
+                                 policy=sb3_policy(new_model(metadata))))  # fmt: skip
+    return entries
+
+
+class StepLimit:
+    """``should_stop`` for :func:`run_race`: true once it has been asked ``steps`` times (it is
+    asked once a step)."""
+
+    def __init__(self, steps: int) -> None:
+        self.steps, self.asked = steps, 0
+
+    def __call__(self) -> bool:
+        self.asked += 1
+        return self.asked >= self.steps
+
+
+class FirstFrame:
+    """Wraps an ``on_frame``: the monotonic time of the first frame it got."""
+
+    def __init__(self, on_frame) -> None:
+        self.on_frame, self.at = on_frame, None
+
+    def __call__(self, rgb, race) -> None:
+        if self.at is None:
+            self.at = time.monotonic()
+        self.on_frame(rgb, race)
+
+
+def race_once(seed: int, args: argparse.Namespace, *, broadcast=None) -> tuple[Race, float]:
+    """One race of ``args.seconds`` of race clock; live with ``broadcast`` (a RaceBroadcast).
+    Returns the race and the monotonic time of its first frame (nan unwatched)."""
+    from racing.race import RaceConfig
+    from racing.tracks import TrackCatalog
+    from training.rl.race import RaceSettings, run_race
+
+    track = TrackCatalog([]).load(args.track)
+    config = RaceConfig(race_type="HEAD_TO_BOT", number_of_bots=BOTS, bot_speed=BOT_SPEED_MPS)
+    steps = max(1, round(args.seconds * REALTIME_FPS))
+    settings = RaceSettings(laps=10, time_limit_s=min(3600.0, max(10.0, args.seconds + 1)),
+                            seed=seed, record_video=broadcast is not None and args.video)  # fmt: skip
+    entries = race_entries(seed)
+    on_frame = FirstFrame(broadcast.frame) if broadcast is not None else None
+    cpu, wall = time.process_time(), time.monotonic()
+    report = run_race(entries, track, settings, race=config, should_stop=StepLimit(steps),
+                      on_frame=on_frame, title="bench_race")  # fmt: skip
+    wall, cpu = time.monotonic() - wall, time.process_time() - cpu
+    cars = [f"{c.status} {c.progress:.1f}% off {c.off_track} crash {c.crashes}"
+            for c in sorted(report.cars, key=lambda c: str(c.key))]  # fmt: skip
+    race = Race(seed, report.steps, report.race_time_s, wall, cpu, cars)
+    return race, (on_frame.at if on_frame and on_frame.at else float("nan"))
+
+
+# ------------------------------------------------------------------------ the console
+def proc_cpu_s(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (0 when it is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def console_env(var: Path, redis_url: str, prefix: str) -> dict[str, str]:
+    """This process's and daphne's environment: the temporary database and folder, Redis."""
+    env = {k: v for k, v in os.environ.items() if k not in ("DATABASE_URL", "REDIS_URL")}
+    env.update({"RACECRAFT_VAR_DIR": str(var), "DATABASE_URL": f"sqlite:///{var / 'db.sqlite3'}",
+                "REDIS_URL": redis_url, "REDIS_PREFIX": prefix, "DEBUG": "0",
+                "SECRET_KEY": "bench-only-key", "ALLOWED_HOSTS": "127.0.0.1,localhost",
+                "LOG_LEVEL": "WARNING", "SECURE_SSL_REDIRECT": "0", "SECURE_HSTS_SECONDS": "0",
+                "DJANGO_SETTINGS_MODULE": "console.settings"})  # fmt: skip
+    return env
+
+
+def public_event() -> int:
+    """A migrated database with a public head-to-bot event open now; its id."""
+    from datetime import timedelta
+
+    from django.contrib.auth import get_user_model
+    from django.core.management import call_command
+    from django.utils import timezone
+
+    from leaderboard.models import Event
+
+    call_command("migrate", verbosity=0)
+    organiser = get_user_model().objects.create_user("organiser")
+    now = timezone.now()
+    event = Event.objects.create(
+        organiser=organiser, name="Race day", track_id="racecraft_oval", race_type="HEAD_TO_BOT",
+        bot_count=BOTS, bot_speed_mps=BOT_SPEED_MPS, opens_at=now - timedelta(hours=1),
+        closes_at=now + timedelta(days=1), is_private=False,
+    )  # fmt: skip
+    return event.pk
+
+
+def delete_prefixed(redis_url: str, prefix: str) -> None:
+    import redis
+
+    client = redis.Redis.from_url(redis_url)
+    try:
+        keys = list(client.scan_iter(match=f"{prefix}*", count=1000))
+        if keys:
+            client.delete(*keys)
+    finally:
+        client.close()
+
+
+def run_live(seed: int, args: argparse.Namespace, url: str, group: str, pids: dict[str, int],
+             env: dict[str, str], scratch: Path) -> Race:  # fmt: skip
+    """The live race, watched by ``args.spectators`` viewers in a child process."""
+    from training.worker.racelive import RaceBroadcast
+
+    out = scratch / f"viewers-{seed}.json"
+    viewers = subprocess.Popen(
+        [sys.executable, __file__, "--spectate", url, "--spectators", str(args.spectators),
+         "--out", str(out)],
+        cwd=ROOT, env=env, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        ready = viewers.stdout.readline().split(maxsplit=3) if viewers.stdout else []
+        if not ready or ready[0] != READY:
+            raise SystemExit(f"the viewers did not start ({viewers.poll()})")
+        if int(ready[1]) == 0:
+            raise SystemExit(f"no viewer could connect: {' '.join(ready[3:])}")
+        print(f"seed {seed}: {ready[1]}/{args.spectators} viewers connected", flush=True)
+        everyone = {**pids, "viewers": viewers.pid}
+        before = {name: proc_cpu_s(pid) for name, pid in everyone.items()}
+        broadcast = RaceBroadcast([group], paced=True)
+        try:
+            race, first = race_once(seed, args, broadcast=broadcast)
+            end = time.monotonic()
+        finally:
+            broadcast.close()
+        cpu = {name: proc_cpu_s(pid) - before[name] for name, pid in everyone.items()}
+        time.sleep(DRAIN_S)
+        viewers.send_signal(signal.SIGTERM)
+        viewers.wait(60)
+        arrivals = json.loads(out.read_text())
+    finally:
+        if viewers.poll() is None:
+            viewers.kill()
+            viewers.wait()
+    sent = sum(p.sent for p in broadcast.publishers)
+    race.live = live_result(arrivals, first, end, wanted=args.spectators,
+                            frames=broadcast.frames, encodes=broadcast.encodes, sent=sent)  # fmt: skip
+    race.live.cpu_s = {"race": race.cpu_s, **cpu}
+    return race
+
+
+def run_all(args: argparse.Namespace) -> list[tuple[Race, Race]]:
+    """daphne (and an embedded Redis) up, then per seed the unpaced race and the live one."""
+    from console.launcher import ChildSpec, EmbeddedRedis, Supervisor
+    from bench_load import free_port, wait_http  # the console's start, as the load bench does
+
+    pairs = []
+    prefix = f"bench-race-{secrets.token_hex(5)}:"
+    with tempfile.TemporaryDirectory(prefix="rc-bench-race-") as tmp, \
+            Supervisor(stop_timeout=30) as sup:  # fmt: skip
+        var = Path(tmp)
+        redis_url, pids = args.redis_url, {}
+        if not redis_url:
+            redis = EmbeddedRedis(var / "redis.sock", persist=False)
+            pids["redis"] = sup.start(redis.spec()).process.pid
+            sup.wait_until(redis.ping, what="embedded Redis", timeout=30)
+            redis_url = redis.url
+        env = console_env(var, redis_url, prefix)
+        os.environ.update(env)
+        import django
+
+        django.setup()
+        from leaderboard.live import broadcast_group
+        from training.rl.algorithms import set_torch_threads
+
+        set_torch_threads(1)  # as the race worker: one observation per car and step
+        event_id = public_event()
+        port = free_port()
+        daphne = sup.start(ChildSpec("daphne", [sys.executable, "-m", "daphne", "-b",
+                                                "127.0.0.1", "-p", str(port),
+                                                "console.asgi:application"], env=env))  # fmt: skip
+        pids["daphne"] = daphne.process.pid
+        try:
+            wait_http(port, daphne.process, timeout=START_TIMEOUT_S)
+            url = f"ws://127.0.0.1:{port}/ws/league/events/{event_id}/broadcast/"
+            for seed in range(args.seeds):
+                base, _ = race_once(seed, args)
+                print(f"seed {seed}: unpaced {base.steps} steps in {base.wall_s:.1f} s "
+                      f"({base.steps_per_s:.0f} steps/s)", flush=True)  # fmt: skip
+                live = run_live(seed, args, url, broadcast_group(event_id), pids, env, var)
+                print(f"seed {seed}: live {live.steps} steps in {live.wall_s:.1f} s, median "
+                      f"viewer {live.live.fps:.1f} fps", flush=True)  # fmt: skip
+                pairs.append((base, live))
+        finally:
+            from django.db import connections
+
+            connections.close_all()
+            sup.stop_all()  # daphne first (reverse start order), then the embedded Redis
+            if args.redis_url:
+                delete_prefixed(args.redis_url, prefix)
+    return pairs
+
+
+# ------------------------------------------------------------------------------ the report
+def report(pairs: list[tuple[Race, Race]], args: argparse.Namespace) -> None:
+    video = "with the MP4" if args.video else "no MP4"
+    print(f"\n2 cars ({', '.join(' + '.join(c) for c in CARS)}), {BOTS} bots at "
+          f"{BOT_SPEED_MPS} m/s on {args.track}, {args.seconds:g} s of race clock; live: "
+          f"paced at {REALTIME_FPS:.0f} fps, {video}, {args.spectators} websocket viewers")  # fmt: skip
+    print(f"{'seed':>4}{'run':>9}{'steps':>7}{'clock s':>8}{'wall s':>8}{'steps/s':>8}"
+          f"{'cpu ms/st':>10}{'shown':>7}{'encoded':>8}{'sent':>6}{'viewers':>9}"
+          f"{'recv min/med/max':>18}{'fps med':>8}{'fps min':>8}{'max gap s':>10}")  # fmt: skip
+    for base, live in pairs:
+        for run, race in (("unpaced", base), ("live", live)):
+            row = (f"{race.seed:>4}{run:>9}{race.steps:>7}{race.clock_s:>8.1f}"
+                   f"{race.wall_s:>8.1f}{race.steps_per_s:>8.1f}{race.cpu_ms_per_step:>10.1f}")  # fmt: skip
+            r = race.live
+            if r is not None and r.viewers:
+                recv = [v.frames for v in r.viewers]
+                spread = f"{min(recv)}/{statistics.median(recv):.0f}/{max(recv)}"
+                row += (f"{r.frames:>7}{r.encodes:>8}{r.sent:>6}"
+                        f"{f'{r.connected}/{r.wanted}':>9}{spread:>18}{r.fps:>8.2f}"
+                        f"{min(v.fps for v in r.viewers):>8.2f}{r.max_gap_s:>10.2f}")  # fmt: skip
+            print(row)
+    same = all(base.cars == live.cars and base.steps == live.steps for base, live in pairs)
+    print(f"\nthe same race unpaced and live (steps, each car's outcome): "
+          f"{'yes' if same else 'NO'}")  # fmt: skip
+    for base, live in pairs:
+        for car in live.cars:
+            print(f"  seed {live.seed}: {car}")
+        if live.live is not None:
+            r = live.live
+            cpu = ", ".join(f"{name} {s:.1f} s ({100 * s / live.wall_s:.0f}%)"
+                            for name, s in r.cpu_s.items())  # fmt: skip
+            print(f"  seed {live.seed}: CPU during the live race ({live.wall_s:.1f} s wall, "
+                  f"% of one core): {cpu}")  # fmt: skip
+            print(f"  seed {live.seed}: viewers' window {r.window_s:.1f} s; frames received in "
+                  f"all {min(r.received_total)}-{max(r.received_total)} per viewer")  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--spectators", type=int, default=100)
+    parser.add_argument("--seconds", type=float, default=30.0, help="race clock per race")
+    parser.add_argument("--seeds", type=int, default=1)
+    parser.add_argument("--track", default="racecraft_oval")
+    parser.add_argument("--no-video", dest="video", action="store_false",
+                        help="the live race records no MP4")  # fmt: skip
+    parser.add_argument("--redis-url", default="", help="default: an embedded Redis")
+    parser.add_argument("--spectate", help=argparse.SUPPRESS)  # a child: the viewers
+    parser.add_argument("--out", type=Path, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.spectate:
+        asyncio.run(spectate(args.spectate, args.spectators, args.out))
+        return
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_training import machine
+
+    print(f"machine: {machine()}", flush=True)
+    pairs = run_all(args)
+    print(f"machine after: {machine()}")
+    report(pairs, args)
+    print(f"\n{last_line(pairs, args.spectators)}")
+
+
+if __name__ == "__main__":
+    main()
