@@ -53,6 +53,7 @@ import base64
 import json
 import os
 import secrets
+import shutil
 import signal
 import statistics
 import struct
@@ -114,6 +115,13 @@ class Live:
     window_s: float
     received_total: list[int] = field(default_factory=list)
     cpu_s: dict[str, float] = field(default_factory=dict)
+    shown_s: float = 0.0
+    """Wall seconds from the first frame the race showed to its last."""
+
+    @property
+    def paced_fps(self) -> float:
+        """Frames/s the race itself showed (its pacing), first frame to last."""
+        return (self.frames - 1) / self.shown_s if self.shown_s > 0 else 0.0
 
     @property
     def fps(self) -> float:
@@ -149,13 +157,17 @@ class Race:
     steps: int
     clock_s: float
     wall_s: float
+    """From the call to :func:`run_race` to its return (the race's set-up included)."""
+    stepping_s: float
+    """From the end of the first step to the end of the last."""
     cpu_s: float
     cars: list[str]
     live: Live | None = None
 
     @property
     def steps_per_s(self) -> float:
-        return self.steps / self.wall_s if self.wall_s else 0.0
+        """Steps per wall second while the race ran (its set-up left out)."""
+        return (self.steps - 1) / self.stepping_s if self.stepping_s > 0 else 0.0
 
     @property
     def cpu_ms_per_step(self) -> float:
@@ -170,7 +182,7 @@ def last_line(pairs: list[tuple[Race, Race]], spectators: int) -> str:
     """The key figures: medians over the seeds of (unpaced, live) pairs, worst gap of all."""
     lives = [live.live for _, live in pairs if live.live is not None]
     fps = median([r.fps for r in lives])
-    paced = median([live.steps_per_s for _, live in pairs])
+    paced = median([r.paced_fps for r in lives])
     gap = max((r.max_gap_s for r in lives), default=float("inf"))
     encodes = max((r.encodes_per_frame for r in lives), default=0.0)
     sim = median([base.steps_per_s for base, _ in pairs])
@@ -295,31 +307,43 @@ def race_entries(seed: int) -> list:
 
 class StepLimit:
     """``should_stop`` for :func:`run_race`: true once it has been asked ``steps`` times (it is
-    asked once a step)."""
+    asked once a step, after the step); times the first and the last step's end."""
 
     def __init__(self, steps: int) -> None:
         self.steps, self.asked = steps, 0
+        self.first = self.last = 0.0
 
     def __call__(self) -> bool:
         self.asked += 1
+        self.last = time.monotonic()
+        if self.asked == 1:
+            self.first = self.last
         return self.asked >= self.steps
 
+    @property
+    def stepping_s(self) -> float:
+        """Wall seconds from the end of the first step to the end of the last."""
+        return self.last - self.first
 
-class FirstFrame:
-    """Wraps an ``on_frame``: the monotonic time of the first frame it got."""
+
+class FrameClock:
+    """Wraps an ``on_frame``: the monotonic times of the first and the last frame it passed on
+    (``nan`` before any)."""
 
     def __init__(self, on_frame) -> None:
-        self.on_frame, self.at = on_frame, None
+        self.on_frame, self.first, self.last = on_frame, float("nan"), float("nan")
 
     def __call__(self, rgb, race) -> None:
-        if self.at is None:
-            self.at = time.monotonic()
+        if self.first != self.first:  # nan: the first frame
+            self.first = time.monotonic()
         self.on_frame(rgb, race)
+        self.last = time.monotonic()
 
 
-def race_once(seed: int, args: argparse.Namespace, *, broadcast=None) -> tuple[Race, float]:
-    """One race of ``args.seconds`` of race clock; live with ``broadcast`` (a RaceBroadcast).
-    Returns the race and the monotonic time of its first frame (nan unwatched)."""
+def race_once(seed: int, args: argparse.Namespace, *, broadcast=None
+              ) -> tuple[Race, FrameClock | None]:  # fmt: skip
+    """One race of ``args.seconds`` of race clock; live with ``broadcast`` (a RaceBroadcast),
+    whose frames are timed (the clock returned with the race, ``None`` unwatched)."""
     from racing.race import RaceConfig
     from racing.tracks import TrackCatalog
     from training.rl.race import RaceSettings, run_race
@@ -327,18 +351,20 @@ def race_once(seed: int, args: argparse.Namespace, *, broadcast=None) -> tuple[R
     track = TrackCatalog([]).load(args.track)
     config = RaceConfig(race_type="HEAD_TO_BOT", number_of_bots=BOTS, bot_speed=BOT_SPEED_MPS)
     steps = max(1, round(args.seconds * REALTIME_FPS))
-    settings = RaceSettings(laps=10, time_limit_s=min(3600.0, max(10.0, args.seconds + 1)),
-                            seed=seed, record_video=broadcast is not None and args.video)  # fmt: skip
+    limit_s = min(3600.0, max(10.0, args.seconds + 1))  # RaceSettings' range
+    video = broadcast is not None and args.video
+    settings = RaceSettings(laps=10, time_limit_s=limit_s, seed=seed, record_video=video)
     entries = race_entries(seed)
-    on_frame = FirstFrame(broadcast.frame) if broadcast is not None else None
+    on_frame = FrameClock(broadcast.frame) if broadcast is not None else None
     cpu, wall = time.process_time(), time.monotonic()
-    report = run_race(entries, track, settings, race=config, should_stop=StepLimit(steps),
+    limit = StepLimit(steps)
+    report = run_race(entries, track, settings, race=config, should_stop=limit,
                       on_frame=on_frame, title="bench_race")  # fmt: skip
     wall, cpu = time.monotonic() - wall, time.process_time() - cpu
     cars = [f"{c.status} {c.progress:.1f}% off {c.off_track} crash {c.crashes}"
             for c in sorted(report.cars, key=lambda c: str(c.key))]  # fmt: skip
-    race = Race(seed, report.steps, report.race_time_s, wall, cpu, cars)
-    return race, (on_frame.at if on_frame and on_frame.at else float("nan"))
+    race = Race(seed, report.steps, report.race_time_s, wall, limit.stepping_s, cpu, cars)
+    return race, on_frame
 
 
 # ------------------------------------------------------------------------ the console
@@ -417,7 +443,7 @@ def run_live(seed: int, args: argparse.Namespace, url: str, group: str, pids: di
         before = {name: proc_cpu_s(pid) for name, pid in everyone.items()}
         broadcast = RaceBroadcast([group], paced=True)
         try:
-            race, first = race_once(seed, args, broadcast=broadcast)
+            race, clock = race_once(seed, args, broadcast=broadcast)
             end = time.monotonic()
         finally:
             broadcast.close()
@@ -431,42 +457,45 @@ def run_live(seed: int, args: argparse.Namespace, url: str, group: str, pids: di
             viewers.kill()
             viewers.wait()
     sent = sum(p.sent for p in broadcast.publishers)
-    race.live = live_result(arrivals, first, end, wanted=args.spectators,
-                            frames=broadcast.frames, encodes=broadcast.encodes, sent=sent)  # fmt: skip
+    race.live = live_result(arrivals, clock.first, end, wanted=args.spectators, sent=sent,
+                            frames=broadcast.frames, encodes=broadcast.encodes)  # fmt: skip
+    race.live.shown_s = clock.last - clock.first
     race.live.cpu_s = {"race": race.cpu_s, **cpu}
     return race
 
 
-def run_all(args: argparse.Namespace) -> list[tuple[Race, Race]]:
-    """daphne (and an embedded Redis) up, then per seed the unpaced race and the live one."""
-    from console.launcher import ChildSpec, EmbeddedRedis, Supervisor
+def run_all(args: argparse.Namespace, var: Path, redis_url: str, env: dict[str, str]
+            ) -> list[tuple[Race, Race]]:  # fmt: skip
+    """daphne (and the embedded Redis) up, then per seed the unpaced race and the live one.
+    ``env`` is already this process's environment: Django reads it at the first import."""
+    import django
     from bench_load import free_port, wait_http  # the console's start, as the load bench does
 
+    from console.launcher import ChildSpec, EmbeddedRedis, Supervisor
+
     pairs = []
-    prefix = f"bench-race-{secrets.token_hex(5)}:"
-    with tempfile.TemporaryDirectory(prefix="rc-bench-race-") as tmp, \
-            Supervisor(stop_timeout=30) as sup:  # fmt: skip
-        var = Path(tmp)
-        redis_url, pids = args.redis_url, {}
-        if not redis_url:
+    with Supervisor(stop_timeout=30) as sup:
+        pids = {}
+        if not args.redis_url:
             redis = EmbeddedRedis(var / "redis.sock", persist=False)
+            if redis.url != redis_url:
+                raise SystemExit(f"the embedded Redis is at {redis.url}, not {redis_url}")
             pids["redis"] = sup.start(redis.spec()).process.pid
             sup.wait_until(redis.ping, what="embedded Redis", timeout=30)
-            redis_url = redis.url
-        env = console_env(var, redis_url, prefix)
-        os.environ.update(env)
-        import django
-
         django.setup()
+        from django.conf import settings
+
+        if not str(settings.DATABASES["default"]["NAME"]).startswith(str(var)):
+            raise SystemExit("Django's settings were read before the bench set its database")
         from leaderboard.live import broadcast_group
         from training.rl.algorithms import set_torch_threads
 
         set_torch_threads(1)  # as the race worker: one observation per car and step
         event_id = public_event()
         port = free_port()
-        daphne = sup.start(ChildSpec("daphne", [sys.executable, "-m", "daphne", "-b",
-                                                "127.0.0.1", "-p", str(port),
-                                                "console.asgi:application"], env=env))  # fmt: skip
+        argv = [sys.executable, "-m", "daphne", "-b", "127.0.0.1", "-p", str(port), "-v", "0",
+                "console.asgi:application"]  # fmt: skip
+        daphne = sup.start(ChildSpec("daphne", argv, env=env))
         pids["daphne"] = daphne.process.pid
         try:
             wait_http(port, daphne.process, timeout=START_TIMEOUT_S)
@@ -485,7 +514,7 @@ def run_all(args: argparse.Namespace) -> list[tuple[Race, Race]]:
             connections.close_all()
             sup.stop_all()  # daphne first (reverse start order), then the embedded Redis
             if args.redis_url:
-                delete_prefixed(args.redis_url, prefix)
+                delete_prefixed(args.redis_url, env["REDIS_PREFIX"])
     return pairs
 
 
@@ -494,14 +523,16 @@ def report(pairs: list[tuple[Race, Race]], args: argparse.Namespace) -> None:
     video = "with the MP4" if args.video else "no MP4"
     print(f"\n2 cars ({', '.join(' + '.join(c) for c in CARS)}), {BOTS} bots at "
           f"{BOT_SPEED_MPS} m/s on {args.track}, {args.seconds:g} s of race clock; live: "
-          f"paced at {REALTIME_FPS:.0f} fps, {video}, {args.spectators} websocket viewers")  # fmt: skip
+          f"paced at {REALTIME_FPS:.0f} fps, {video}, {args.spectators} websocket "
+          "viewers")  # fmt: skip
     print(f"{'seed':>4}{'run':>9}{'steps':>7}{'clock s':>8}{'wall s':>8}{'steps/s':>8}"
           f"{'cpu ms/st':>10}{'shown':>7}{'encoded':>8}{'sent':>6}{'viewers':>9}"
           f"{'recv min/med/max':>18}{'fps med':>8}{'fps min':>8}{'max gap s':>10}")  # fmt: skip
     for base, live in pairs:
         for run, race in (("unpaced", base), ("live", live)):
             row = (f"{race.seed:>4}{run:>9}{race.steps:>7}{race.clock_s:>8.1f}"
-                   f"{race.wall_s:>8.1f}{race.steps_per_s:>8.1f}{race.cpu_ms_per_step:>10.1f}")  # fmt: skip
+                   f"{race.wall_s:>8.1f}{race.steps_per_s:>8.1f}"
+                   f"{race.cpu_ms_per_step:>10.1f}")  # fmt: skip
             r = race.live
             if r is not None and r.viewers:
                 recv = [v.frames for v in r.viewers]
@@ -513,7 +544,7 @@ def report(pairs: list[tuple[Race, Race]], args: argparse.Namespace) -> None:
     same = all(base.cars == live.cars and base.steps == live.steps for base, live in pairs)
     print(f"\nthe same race unpaced and live (steps, each car's outcome): "
           f"{'yes' if same else 'NO'}")  # fmt: skip
-    for base, live in pairs:
+    for _, live in pairs:
         for car in live.cars:
             print(f"  seed {live.seed}: {car}")
         if live.live is not None:
@@ -541,12 +572,21 @@ def main() -> None:
     if args.spectate:
         asyncio.run(spectate(args.spectate, args.spectators, args.out))
         return
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from bench_training import machine
+    var = Path(tempfile.mkdtemp(prefix="rc-bench-race-"))
+    try:
+        # Before any import of ours: importing ``console`` configures Django's settings.
+        redis_url = args.redis_url or f"unix://{var / 'redis.sock'}?db=0"
+        env = console_env(var, redis_url, f"bench-race-{secrets.token_hex(5)}:")
+        os.environ.clear()
+        os.environ.update(env)
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from bench_training import machine
 
-    print(f"machine: {machine()}", flush=True)
-    pairs = run_all(args)
-    print(f"machine after: {machine()}")
+        print(f"machine: {machine()}", flush=True)
+        pairs = run_all(args, var, redis_url, env)
+        print(f"machine after: {machine()}")
+    finally:
+        shutil.rmtree(var, ignore_errors=True)
     report(pairs, args)
     print(f"\n{last_line(pairs, args.spectators)}")
 
