@@ -70,36 +70,52 @@ REALTIME_FPS = 15.0
 """Frames (and steps) per second of a race shown at real time: racelive.FRAME_S's inverse."""
 SETTLE_S = 1.0
 """Seconds after the first frame left out of the window."""
-DRAIN_S = 2.0
-"""Seconds the viewers keep listening after the race returns (frames in flight)."""
+QUIET_S, MAX_DRAIN_S = 1.0, 60.0
+"""After the race the viewers listen on until no frame came for QUIET_S (frames in flight or
+queued), MAX_DRAIN_S at most."""
 CONNECT_TIMEOUT_S = 90.0
 START_TIMEOUT_S = 90.0
 CARS = (("FRONT_FACING_CAMERA",), ("STEREO_CAMERAS", "LIDAR"))
 BOTS, BOT_SPEED_MPS = 6, 0.75
 FRAME_PREFIX = b'{"type": "frame"'
+CLOCK_KEY = b'"clock_s": '
 READY = "READY"
 
 
 # ---------------------------------------------------------------------------- the figures
 @dataclass
 class Viewer:
-    """One viewer's window: frames, frames/s and the longest gap (seconds)."""
+    """One viewer: frames in the window, frames/s over it and the longest gap (seconds); all
+    the frames it got, the race in time and after; how long after the race showed them (s)."""
 
     frames: int
     fps: float
     max_gap_s: float
+    received: int
+    delay_median_s: float
+    delay_max_s: float
 
 
-def viewer_window(arrivals: list[float], start: float, end: float) -> Viewer:
-    """A viewer's frames in the window ``[start, end]`` (monotonic seconds): how many, per
-    second, and the longest gap between two of them; the gap from its last frame to ``end``
-    counts, and so does the one that runs into the window from before it (or from ``start``)."""
-    inside = [t for t in arrivals if start <= t <= end]
-    before = [t for t in arrivals if t < start]
+def viewer_window(arrivals: list[tuple[float, float | None]], start: float, end: float,
+                  shown_at: dict[float, float]) -> Viewer:  # fmt: skip
+    """A viewer's frames (``(monotonic arrival, race clock)`` each) in the window ``[start,
+    end]``: how many, per second, and the longest gap between two of them; the gap from its
+    last frame to ``end`` counts, and so does the one that runs into the window from before it
+    (or from ``start``). Delays: from ``shown_at[race clock]`` (when the race showed that
+    frame) to the arrival, for every frame shown from ``start`` on."""
+    times = [t for t, _ in arrivals]
+    inside = [t for t in times if start <= t <= end]
+    before = [t for t in times if t < start]
     points = [before[-1] if before else start, *inside, end]
     gaps = [b - a for a, b in zip(points, points[1:], strict=False)]
     span = end - start
-    return Viewer(len(inside), len(inside) / span if span > 0 else 0.0, max(gaps, default=span))
+    delays = [t - shown_at[c] for t, c in arrivals
+              if c is not None and shown_at.get(c, -1.0) >= start]  # fmt: skip
+    return Viewer(
+        frames=len(inside), fps=len(inside) / span if span > 0 else 0.0,
+        max_gap_s=max(gaps, default=span), received=len(arrivals),
+        delay_median_s=median(delays), delay_max_s=max(delays, default=float("nan")),
+    )  # fmt: skip
 
 
 @dataclass
@@ -113,10 +129,10 @@ class Live:
     encodes: int
     sent: int
     window_s: float
-    received_total: list[int] = field(default_factory=list)
-    cpu_s: dict[str, float] = field(default_factory=dict)
-    shown_s: float = 0.0
+    shown_s: float
     """Wall seconds from the first frame the race showed to its last."""
+    cpu_s: dict[str, float] = field(default_factory=dict)
+    """CPU seconds during the race per process, and ``machine`` (every process, both cores)."""
 
     @property
     def paced_fps(self) -> float:
@@ -136,16 +152,23 @@ class Live:
     def encodes_per_frame(self) -> float:
         return self.encodes / self.frames if self.frames else 0.0
 
+    @property
+    def delay_s(self) -> float:
+        """The median viewer's median delay behind the race."""
+        return median([v.delay_median_s for v in self.viewers])
 
-def live_result(arrivals: list[list[float]], first_frame: float, end: float, *, wanted: int,
-                frames: int, encodes: int, sent: int) -> Live:  # fmt: skip
-    """What the viewers got: ``arrivals`` one list of monotonic frame times per connected
-    viewer; the window runs from :data:`SETTLE_S` after ``first_frame`` to ``end``."""
-    start = first_frame + SETTLE_S
-    viewers = [viewer_window(times, start, end) for times in arrivals]
-    return Live(viewers=viewers, connected=len(arrivals), wanted=wanted, frames=frames,
+
+def live_result(arrivals: list[list[tuple[float, float | None]]], shown: list[tuple[float, float]],
+                end: float, *, wanted: int, encodes: int, sent: int) -> Live:  # fmt: skip
+    """What the viewers got: ``arrivals`` one list of ``(monotonic time, race clock)`` per
+    connected viewer, ``shown`` the race's frames as ``(race clock, monotonic time)``; the
+    window runs from :data:`SETTLE_S` after the first frame to ``end``."""
+    start = (shown[0][1] if shown else end) + SETTLE_S
+    shown_at = dict(shown)
+    viewers = [viewer_window(times, start, end, shown_at) for times in arrivals]
+    return Live(viewers=viewers, connected=len(arrivals), wanted=wanted, frames=len(shown),
                 encodes=encodes, sent=sent, window_s=max(0.0, end - start),
-                received_total=[len(times) for times in arrivals])  # fmt: skip
+                shown_s=shown[-1][1] - shown[0][1] if shown else 0.0)  # fmt: skip
 
 
 @dataclass
@@ -162,6 +185,8 @@ class Race:
     """From the end of the first step to the end of the last."""
     cpu_s: float
     cars: list[str]
+    car_steps: int
+    """Steps the cars drove (each asked its policy), all cars together."""
     live: Live | None = None
 
     @property
@@ -178,6 +203,10 @@ def median(values: list[float]) -> float:
     return float(statistics.median(values)) if values else float("nan")
 
 
+def line_value(value: float, digits: int) -> str:
+    return "nan" if value != value else f"{value:.{digits}f}"
+
+
 def last_line(pairs: list[tuple[Race, Race]], spectators: int) -> str:
     """The key figures: medians over the seeds of (unpaced, live) pairs, worst gap of all."""
     lives = [live.live for _, live in pairs if live.live is not None]
@@ -190,11 +219,12 @@ def last_line(pairs: list[tuple[Race, Race]], spectators: int) -> str:
                     for base, live in pairs if base.cpu_ms_per_step])  # fmt: skip
     connected = min((r.connected for r in lives), default=0)
     frames = median([statistics.median(v.frames for v in r.viewers) for r in lives if r.viewers])
+    delay = median([r.delay_s for r in lives])
     return (f"race_fps={fps:.2f} paced_fps={paced:.2f} max_gap_s={gap:.2f} "
             f"encodes_per_frame={encodes:.3f} sim_steps_per_s={sim:.1f} "
             f"realtime={fps / REALTIME_FPS:.3f} ratio={ratio:.2f} "
-            f"frames_per_viewer={frames:.0f} spectators={connected}/{spectators} "
-            f"seeds={len(pairs)}")  # fmt: skip
+            f"delay_s={line_value(delay, 2)} frames_per_viewer={line_value(frames, 0)} "
+            f"spectators={connected}/{spectators} seeds={len(pairs)}")  # fmt: skip
 
 
 # --------------------------------------------------------------------------- the viewers
@@ -204,10 +234,22 @@ def mask(payload: bytes) -> bytes:
     return key + bytes(b ^ key[i % 4] for i, b in enumerate(payload))
 
 
-async def view(url: str, times: list[float], opened: asyncio.Future) -> None:
-    """One anonymous viewer: the handshake (with the Origin a browser sends), then the time of
-    every complete frame message; pongs for daphne's pings. Sets ``opened`` (True, or the
-    exception) once the handshake ended."""
+def race_clock(payload: bytes) -> float | None:
+    """The ``timing.clock_s`` at the end of a frame message (after its JPEG), or None."""
+    at = payload.rfind(CLOCK_KEY, max(0, len(payload) - 4096))
+    if at < 0:
+        return None
+    value = payload[at + len(CLOCK_KEY) : at + len(CLOCK_KEY) + 24].split(b",")[0]
+    try:
+        return float(value.split(b"}")[0])
+    except ValueError:
+        return None
+
+
+async def view(url: str, times: list[tuple[float, float | None]], opened: asyncio.Future) -> None:
+    """One anonymous viewer: the handshake (with the Origin a browser sends), then the arrival
+    time and race clock of every complete frame message; pongs for daphne's pings. Sets
+    ``opened`` (True, or the exception) once the handshake ended."""
     parts = urlsplit(url)
     host, port = parts.hostname or "127.0.0.1", parts.port or 80
     try:
@@ -243,7 +285,7 @@ async def view(url: str, times: list[float], opened: asyncio.Future) -> None:
             if opcode in (0x1, 0x0):
                 first = payload[: len(FRAME_PREFIX)] if opcode == 0x1 else first
                 if fin and first.startswith(FRAME_PREFIX):
-                    times.append(time.monotonic())
+                    times.append((time.monotonic(), race_clock(payload)))
     except (OSError, asyncio.IncompleteReadError):
         return
     finally:
@@ -252,12 +294,12 @@ async def view(url: str, times: list[float], opened: asyncio.Future) -> None:
 
 async def spectate(url: str, count: int, out: Path) -> None:
     """``count`` viewers of ``url``; prints ``READY <connected> <failed> <first error>`` once
-    every handshake ended, listens until SIGTERM, then writes the connected viewers' frame
-    times to ``out`` as JSON."""
+    every handshake ended, listens until SIGTERM and then until the frames stop (no frame for
+    :data:`QUIET_S`), then writes the connected viewers' frames to ``out`` as JSON."""
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     loop.add_signal_handler(signal.SIGTERM, stop.set)
-    times: list[list[float]] = [[] for _ in range(count)]
+    times: list[list[tuple[float, float | None]]] = [[] for _ in range(count)]
     opened = [loop.create_future() for _ in range(count)]
     tasks = []
     for i in range(count):  # a few at a time, as people arrive
@@ -270,6 +312,12 @@ async def spectate(url: str, count: int, out: Path) -> None:
     errors = [repr(r) for r in results if r is not True]
     print(f"{READY} {sum(ok)} {count - sum(ok)} {errors[0] if errors else ''}", flush=True)
     await stop.wait()
+    stopped = time.monotonic()
+    while time.monotonic() - stopped < MAX_DRAIN_S:
+        last = max((t[-1][0] for t in times if t), default=0.0)
+        if time.monotonic() - max(last, stopped) > QUIET_S:
+            break
+        await asyncio.sleep(0.1)
     for task in tasks:
         task.cancel()
     await asyncio.gather(*tasks, return_exceptions=True)
@@ -277,8 +325,20 @@ async def spectate(url: str, count: int, out: Path) -> None:
 
 
 # ------------------------------------------------------------------------------ the races
+class CountedPolicy:
+    """A policy that counts the observations it acted on."""
+
+    def __init__(self, policy) -> None:
+        self.policy, self.calls = policy, 0
+
+    def __call__(self, obs):
+        self.calls += 1
+        return self.policy(obs)
+
+
 def race_entries(seed: int) -> list:
-    """The two cars, with the console's default network and action space."""
+    """The two cars, with the console's default network and action space (their policies
+    counted: :class:`CountedPolicy`)."""
     import inspect
 
     import torch
@@ -299,9 +359,9 @@ def race_entries(seed: int) -> list:
         metadata = build_metadata(action_space=actions, sensor=list(sensors),
                                   neural_network=network)  # fmt: skip
         name = f"Car {index + 1} ({' + '.join(sensors)})"
-        entries.append(RaceEntry(key=index, name=name,
-                                 racer=Racer(sensors=sensors, action_space=actions, name=name),
-                                 policy=sb3_policy(new_model(metadata))))  # fmt: skip
+        policy = CountedPolicy(sb3_policy(new_model(metadata)))
+        racer = Racer(sensors=sensors, action_space=actions, name=name)
+        entries.append(RaceEntry(key=index, name=name, racer=racer, policy=policy))
     return entries
 
 
@@ -327,17 +387,16 @@ class StepLimit:
 
 
 class FrameClock:
-    """Wraps an ``on_frame``: the monotonic times of the first and the last frame it passed on
-    (``nan`` before any)."""
+    """Wraps an ``on_frame``: ``shown`` lists each frame's race clock (as the timing sends it)
+    and the monotonic time it was handed on, once paced."""
 
     def __init__(self, on_frame) -> None:
-        self.on_frame, self.first, self.last = on_frame, float("nan"), float("nan")
+        self.on_frame = on_frame
+        self.shown: list[tuple[float, float]] = []
 
     def __call__(self, rgb, race) -> None:
-        if self.first != self.first:  # nan: the first frame
-            self.first = time.monotonic()
         self.on_frame(rgb, race)
-        self.last = time.monotonic()
+        self.shown.append((round(race.clock_s, 2), time.monotonic()))
 
 
 def race_once(seed: int, args: argparse.Namespace, *, broadcast=None
@@ -353,7 +412,14 @@ def race_once(seed: int, args: argparse.Namespace, *, broadcast=None
     steps = max(1, round(args.seconds * REALTIME_FPS))
     limit_s = min(3600.0, max(10.0, args.seconds + 1))  # RaceSettings' range
     video = broadcast is not None and args.video
-    settings = RaceSettings(laps=10, time_limit_s=limit_s, seed=seed, record_video=video)
+    settings = RaceSettings(
+        laps=10,
+        time_limit_s=limit_s,
+        seed=seed,
+        record_video=video,
+        off_track_penalty_s=args.penalty_s,
+        crash_penalty_s=args.penalty_s,
+    )
     entries = race_entries(seed)
     on_frame = FrameClock(broadcast.frame) if broadcast is not None else None
     cpu, wall = time.process_time(), time.monotonic()
@@ -363,18 +429,24 @@ def race_once(seed: int, args: argparse.Namespace, *, broadcast=None
     wall, cpu = time.monotonic() - wall, time.process_time() - cpu
     cars = [f"{c.status} {c.progress:.1f}% off {c.off_track} crash {c.crashes}"
             for c in sorted(report.cars, key=lambda c: str(c.key))]  # fmt: skip
-    race = Race(seed, report.steps, report.race_time_s, wall, limit.stepping_s, cpu, cars)
+    driven = sum(entry.policy.calls for entry in entries)
+    race = Race(seed, report.steps, report.race_time_s, wall, limit.stepping_s, cpu, cars, driven)
     return race, on_frame
 
 
 # ------------------------------------------------------------------------ the console
-def proc_cpu_s(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` so far (0 when it is gone)."""
+def proc_cpu_s(pid: int | None) -> float:
+    """User + system CPU seconds of process ``pid`` so far (0 when it is gone); ``None``: of
+    the whole machine, every core (``/proc/stat``: all but idle and iowait)."""
+    tick = os.sysconf("SC_CLK_TCK")
     try:
+        if pid is None:
+            jiffies = [int(x) for x in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
+            return (sum(jiffies[:8]) - jiffies[3] - jiffies[4]) / tick
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     except OSError:
         return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return (int(fields[11]) + int(fields[12])) / tick
 
 
 def console_env(var: Path, redis_url: str, prefix: str) -> dict[str, str]:
@@ -439,7 +511,7 @@ def run_live(seed: int, args: argparse.Namespace, url: str, group: str, pids: di
         if int(ready[1]) == 0:
             raise SystemExit(f"no viewer could connect: {' '.join(ready[3:])}")
         print(f"seed {seed}: {ready[1]}/{args.spectators} viewers connected", flush=True)
-        everyone = {**pids, "viewers": viewers.pid}
+        everyone = {**pids, "viewers": viewers.pid, "machine": None}
         before = {name: proc_cpu_s(pid) for name, pid in everyone.items()}
         broadcast = RaceBroadcast([group], paced=True)
         try:
@@ -448,18 +520,18 @@ def run_live(seed: int, args: argparse.Namespace, url: str, group: str, pids: di
         finally:
             broadcast.close()
         cpu = {name: proc_cpu_s(pid) - before[name] for name, pid in everyone.items()}
-        time.sleep(DRAIN_S)
         viewers.send_signal(signal.SIGTERM)
-        viewers.wait(60)
-        arrivals = json.loads(out.read_text())
+        viewers.wait(MAX_DRAIN_S + 30)
+        arrivals = [[(t, c) for t, c in viewer] for viewer in json.loads(out.read_text())]
     finally:
         if viewers.poll() is None:
             viewers.kill()
             viewers.wait()
     sent = sum(p.sent for p in broadcast.publishers)
-    race.live = live_result(arrivals, clock.first, end, wanted=args.spectators, sent=sent,
-                            frames=broadcast.frames, encodes=broadcast.encodes)  # fmt: skip
-    race.live.shown_s = clock.last - clock.first
+    race.live = live_result(arrivals, clock.shown, end, wanted=args.spectators, sent=sent,
+                            encodes=broadcast.encodes)  # fmt: skip
+    if broadcast.frames != race.live.frames:
+        raise SystemExit(f"{broadcast.frames} frames paced but {race.live.frames} shown")
     race.live.cpu_s = {"race": race.cpu_s, **cpu}
     return race
 
@@ -522,25 +594,34 @@ def run_all(args: argparse.Namespace, var: Path, redis_url: str, env: dict[str, 
 def report(pairs: list[tuple[Race, Race]], args: argparse.Namespace) -> None:
     video = "with the MP4" if args.video else "no MP4"
     print(f"\n2 cars ({', '.join(' + '.join(c) for c in CARS)}), {BOTS} bots at "
-          f"{BOT_SPEED_MPS} m/s on {args.track}, {args.seconds:g} s of race clock; live: "
-          f"paced at {REALTIME_FPS:.0f} fps, {video}, {args.spectators} websocket "
-          "viewers")  # fmt: skip
-    print(f"{'seed':>4}{'run':>9}{'steps':>7}{'clock s':>8}{'wall s':>8}{'steps/s':>8}"
-          f"{'cpu ms/st':>10}{'shown':>7}{'encoded':>8}{'sent':>6}{'viewers':>9}"
-          f"{'recv min/med/max':>18}{'fps med':>8}{'fps min':>8}{'max gap s':>10}")  # fmt: skip
+          f"{BOT_SPEED_MPS} m/s on {args.track}, {args.seconds:g} s of race clock, penalties "
+          f"{args.penalty_s:g} s; live: paced at {REALTIME_FPS:.0f} fps, {video}, "
+          f"{args.spectators} websocket viewers")  # fmt: skip
+    print(f"{'seed':>4}{'run':>8}{'steps':>6}{'driven':>7}{'wall s':>7}{'steps/s':>8}"
+          f"{'cpu ms/st':>10}{'shown':>6}{'enc':>5}{'sent':>5}{'viewers':>8}"
+          f"{'win min/med/max':>16}{'got':>5}{'fps med':>8}{'fps min':>8}{'gap s':>6}"
+          f"{'delay s':>8}{'max':>6}")  # fmt: skip
     for base, live in pairs:
         for run, race in (("unpaced", base), ("live", live)):
-            row = (f"{race.seed:>4}{run:>9}{race.steps:>7}{race.clock_s:>8.1f}"
-                   f"{race.wall_s:>8.1f}{race.steps_per_s:>8.1f}"
+            row = (f"{race.seed:>4}{run:>8}{race.steps:>6}{race.car_steps:>7}"
+                   f"{race.wall_s:>7.1f}{race.steps_per_s:>8.1f}"
                    f"{race.cpu_ms_per_step:>10.1f}")  # fmt: skip
             r = race.live
             if r is not None and r.viewers:
-                recv = [v.frames for v in r.viewers]
-                spread = f"{min(recv)}/{statistics.median(recv):.0f}/{max(recv)}"
-                row += (f"{r.frames:>7}{r.encodes:>8}{r.sent:>6}"
-                        f"{f'{r.connected}/{r.wanted}':>9}{spread:>18}{r.fps:>8.2f}"
-                        f"{min(v.fps for v in r.viewers):>8.2f}{r.max_gap_s:>10.2f}")  # fmt: skip
+                got = [v.frames for v in r.viewers]
+                spread = f"{min(got)}/{statistics.median(got):.0f}/{max(got)}"
+                worst = max(v.delay_max_s for v in r.viewers)
+                row += (f"{r.frames:>6}{r.encodes:>5}{r.sent:>5}"
+                        f"{f'{r.connected}/{r.wanted}':>8}{spread:>16}"
+                        f"{statistics.median(v.received for v in r.viewers):>5.0f}"
+                        f"{r.fps:>8.2f}{min(v.fps for v in r.viewers):>8.2f}"
+                        f"{r.max_gap_s:>6.2f}{r.delay_s:>8.2f}{worst:>6.2f}")  # fmt: skip
             print(row)
+    print(
+        "driven: car-steps that asked a policy; win: frames per viewer in the window "
+        f"(from {SETTLE_S:g} s after the first frame to the race's end); got: all it got, "
+        "late ones included; delay: from the race showing a frame to a viewer getting it"
+    )
     same = all(base.cars == live.cars and base.steps == live.steps for base, live in pairs)
     print(f"\nthe same race unpaced and live (steps, each car's outcome): "
           f"{'yes' if same else 'NO'}")  # fmt: skip
@@ -551,10 +632,10 @@ def report(pairs: list[tuple[Race, Race]], args: argparse.Namespace) -> None:
             r = live.live
             cpu = ", ".join(f"{name} {s:.1f} s ({100 * s / live.wall_s:.0f}%)"
                             for name, s in r.cpu_s.items())  # fmt: skip
-            print(f"  seed {live.seed}: CPU during the live race ({live.wall_s:.1f} s wall, "
-                  f"% of one core): {cpu}")  # fmt: skip
-            print(f"  seed {live.seed}: viewers' window {r.window_s:.1f} s; frames received in "
-                  f"all {min(r.received_total)}-{max(r.received_total)} per viewer")  # fmt: skip
+            print(f"  seed {live.seed}: CPU during the live race ({live.wall_s:.1f} s wall; "
+                  f"% of one core, the machine has {os.cpu_count()}): {cpu}")  # fmt: skip
+            print(f"  seed {live.seed}: the race showed {r.frames} frames in {r.shown_s:.1f} s "
+                  f"({r.paced_fps:.2f} fps); window {r.window_s:.1f} s")  # fmt: skip
 
 
 def main() -> None:
@@ -563,6 +644,8 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=30.0, help="race clock per race")
     parser.add_argument("--seeds", type=int, default=1)
     parser.add_argument("--track", default="racecraft_oval")
+    parser.add_argument("--penalty-s", type=float, default=0.0,
+                        help="off-track and crash penalty (DeepRacer's: 5)")  # fmt: skip
     parser.add_argument("--no-video", dest="video", action="store_false",
                         help="the live race records no MP4")  # fmt: skip
     parser.add_argument("--redis-url", default="", help="default: an embedded Redis")
