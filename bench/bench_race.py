@@ -2,47 +2,54 @@
 real time to 100 websocket viewers of a public event, all on this machine.
 
     .venv/bin/python bench/bench_race.py [--spectators 100] [--seconds 30] [--seeds 1]
-                                         [--track racecraft_oval] [--no-video] [--redis-url URL]
+                                         [--track racecraft_oval] [--penalty-s 0]
+                                         [--no-video] [--redis-url URL]
 
 The cars are what a user gets with the console's defaults: untrained PPO models on the
 network :func:`training.services.models.model_create` picks by default, DeepRacer's default
 discrete action space (:data:`racing.actions.DEFAULT_DISCRETE`); car 1 has the front camera,
 car 2 stereo cameras and LIDAR (DeepRacer's guidance for head-to-head racing). 6 bots drive at
-0.75 m/s. Torch runs one thread, as in the worker.
+0.75 m/s. Torch runs one thread, as in the worker. The penalties are 0 s by default: untrained
+cars leave the track every few seconds, and with DeepRacer's 5 s (``--penalty-s 5``) they
+would sit out most of the race, neither simulated nor asking their policy; at 0 s both drive
+every step, as trained cars that stay on track do (``driven`` counts the car-steps).
 
 Each seed races twice in this process, for ``--seconds`` of race clock each (stopped after
 ``--seconds`` x 15 steps: a race's own time limit is at least 10 s):
 
 - **unpaced** (the baseline): nobody watches, no video: the simulation and the policies as fast
-  as they go (``sim steps/s``);
+  as they go (``steps/s``);
 - **live**: as a race day's evaluation worker runs it (:func:`training.worker.race.run_race_job`):
   :class:`training.worker.racelive.RaceBroadcast` paced at real time (15 frames/s), each
   1280x720 frame JPEG-encoded once and sent once to the event's broadcast group, the MP4
   recorded (``--no-video``: not), while ``--spectators`` websocket clients (one child process,
-  asyncio, raw RFC 6455: they time each frame message and read no further) watch
-  ``/ws/league/events/<id>/broadcast/`` as anonymous visitors of a public event, through a
-  real daphne serving ``console.asgi`` and a Channels layer on Redis (an embedded Redis unless
-  ``--redis-url``; every key under a random prefix, deleted at the end). The database is a
-  fresh SQLite file in a temporary folder (the event and its organiser; nothing else touches
-  it during the race).
+  asyncio, raw RFC 6455: they time each frame message and read its race clock, nothing else)
+  watch ``/ws/league/events/<id>/broadcast/`` as anonymous visitors of a public event, through
+  a real daphne serving ``console.asgi`` and a Channels layer on Redis (an embedded Redis
+  unless ``--redis-url``; every key under a random prefix, deleted at the end). The database
+  is a fresh SQLite file in a temporary folder (the event and its organiser; nothing else
+  touches it during the race). After the race the viewers listen on until the frames stop.
 
-The window of a live race starts 1 s after its first frame was encoded (the first second, while
-viewers' queues settle, is left out) and ends when the race returns. Per viewer: frames
-received in the window, frames/s over it, the longest gap between two frames (the gap from its
-last frame to the window's end included). Printed: the table per seed and run (steps, race
-clock, wall s, steps/s, race CPU ms/step, frames encoded/sent, viewers' frames and gaps), the
-CPU seconds of each process during the live race (race, daphne, viewers, Redis) and the
-machine (CPU, cores, load average before and after). The viewers share this machine's 2 cores
-with the race and daphne; on a real race day they are elsewhere.
+The window of a live race starts 1 s after its first frame (the first second is left out) and
+ends when the race returns. Per viewer: frames received in the window, frames/s over it, the
+longest gap between two frames (the gap from its last frame to the window's end included),
+every frame it got (late ones too), and the delay from the race showing a frame to the viewer
+getting it. Printed: the table per seed and run, the cars' outcomes (the same race both times:
+checked), the CPU seconds of each process during the live race (race, daphne, viewers, the
+embedded Redis, and the whole machine: other work shows there) and the machine (CPU, cores,
+load average before and after). The viewers share this machine's cores with the race and
+daphne; on a real race day they are elsewhere.
 
 Last line (medians over the seeds, worst gap over all): ``race_fps=`` frames/s delivered to the
 median viewer (target >= 14), ``paced_fps=`` frames/s the race itself showed, ``max_gap_s=``
 (target <= 1.0), ``encodes_per_frame=`` JPEG encodes / frames shown (<= 1.05: one encode
 however many watch), ``sim_steps_per_s=`` the unpaced race's steps per second of wall time,
-``realtime=`` race_fps / 15, and ``ratio=`` the live race's CPU per step over the unpaced
-one's, both measured in this run (what broadcasting, the MP4 and pacing cost the worker).
-Steps and frames do not depend on the machine; wall times, frames/s and gaps do. The machine
-may be shared: say so when you quote the figures.
+``realtime=`` race_fps / 15, ``ratio=`` the live race's CPU per step over the unpaced one's,
+both measured in this run (what broadcasting, the MP4 and pacing cost the worker),
+``delay_s=`` the median viewer's median delay behind the race, ``frames_per_viewer=`` (in the
+window) and ``spectators=`` connected/asked. Steps and frames do not depend on the machine;
+wall times, frames/s, gaps and delays do. The machine may be shared: say so when you quote the
+figures.
 """
 
 from __future__ import annotations
@@ -203,10 +210,6 @@ def median(values: list[float]) -> float:
     return float(statistics.median(values)) if values else float("nan")
 
 
-def line_value(value: float, digits: int) -> str:
-    return "nan" if value != value else f"{value:.{digits}f}"
-
-
 def last_line(pairs: list[tuple[Race, Race]], spectators: int) -> str:
     """The key figures: medians over the seeds of (unpaced, live) pairs, worst gap of all."""
     lives = [live.live for _, live in pairs if live.live is not None]
@@ -223,7 +226,7 @@ def last_line(pairs: list[tuple[Race, Race]], spectators: int) -> str:
     return (f"race_fps={fps:.2f} paced_fps={paced:.2f} max_gap_s={gap:.2f} "
             f"encodes_per_frame={encodes:.3f} sim_steps_per_s={sim:.1f} "
             f"realtime={fps / REALTIME_FPS:.3f} ratio={ratio:.2f} "
-            f"delay_s={line_value(delay, 2)} frames_per_viewer={line_value(frames, 0)} "
+            f"delay_s={delay:.2f} frames_per_viewer={frames:.0f} "
             f"spectators={connected}/{spectators} seeds={len(pairs)}")  # fmt: skip
 
 
@@ -460,8 +463,8 @@ def console_env(var: Path, redis_url: str, prefix: str) -> dict[str, str]:
     return env
 
 
-def public_event() -> int:
-    """A migrated database with a public head-to-bot event open now; its id."""
+def public_event(track_id: str) -> int:
+    """A migrated database with a public head-to-bot event on ``track_id``, open now; its id."""
     from datetime import timedelta
 
     from django.contrib.auth import get_user_model
@@ -474,7 +477,7 @@ def public_event() -> int:
     organiser = get_user_model().objects.create_user("organiser")
     now = timezone.now()
     event = Event.objects.create(
-        organiser=organiser, name="Race day", track_id="racecraft_oval", race_type="HEAD_TO_BOT",
+        organiser=organiser, name="Race day", track_id=track_id, race_type="HEAD_TO_BOT",
         bot_count=BOTS, bot_speed_mps=BOT_SPEED_MPS, opens_at=now - timedelta(hours=1),
         closes_at=now + timedelta(days=1), is_private=False,
     )  # fmt: skip
@@ -563,7 +566,7 @@ def run_all(args: argparse.Namespace, var: Path, redis_url: str, env: dict[str, 
         from training.rl.algorithms import set_torch_threads
 
         set_torch_threads(1)  # as the race worker: one observation per car and step
-        event_id = public_event()
+        event_id = public_event(args.track)
         port = free_port()
         argv = [sys.executable, "-m", "daphne", "-b", "127.0.0.1", "-p", str(port), "-v", "0",
                 "console.asgi:application"]  # fmt: skip

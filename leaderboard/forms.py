@@ -76,10 +76,12 @@ class EventForm(forms.Form):
         help_text="Object avoidance: 1 to 6.",
     )  # fmt: skip
     randomize_objects = forms.BooleanField(label="Place boxes at random", required=False)
-    bot_count = forms.IntegerField(label="Number of bot cars", min_value=0, max_value=6,
-                                   initial=0, help_text="Head-to-bot: 1 to 6.")  # fmt: skip
+    bot_count = forms.IntegerField(
+        label="Number of bot cars", min_value=0, max_value=6, initial=6,
+        help_text="Head-to-bot: 1 to 6 (the 2020 head-to-head qualifying: 6 at 0.75 m/s).",
+    )  # fmt: skip
     bot_speed_mps = forms.FloatField(label="Bot speed (m/s)", min_value=0.2, max_value=6.0,
-                                     initial=1.0)  # fmt: skip
+                                     initial=0.75)  # fmt: skip
     bot_lane_changes = forms.BooleanField(required=False)
     bracket_size = forms.TypedChoiceField(
         label="Head-to-head bracket", coerce=int, initial=0,

@@ -1,8 +1,9 @@
 """A race day in a real browser (Chromium through Playwright) against daphne and a real Celery
-worker on the test database, Redis and store: Fran the facilitator queues two entries and
-launches two races; the broadcast page at 1920x1080, opened logged out through the spectator
-link, shows the live video, the race clock, sector colours and the winner overlay; Alice, a
-racer, is refused the controls. Screenshots go to test-artifacts/.
+worker on the test database, Redis and store: Fran the facilitator queues a racer's solo run,
+seeds the bracket (its match joins the queue) and launches both races; the broadcast page at
+1920x1080, opened logged out through the spectator link, shows the live video, the race
+clock, sector colours and the winner overlay; Alice, a racer, is refused the controls.
+Screenshots go to test-artifacts/.
 
 The cars are real checkpoints of an untrained network whose every action drives straight at
 2 m/s: with 1 s penalties such a car laps the oval in about 24 s of race clock, which the race
@@ -18,7 +19,7 @@ import torch
 from django.test import Client
 from league_helpers import make_event, make_user
 
-from leaderboard.models import RaceDaySlot, Submission
+from leaderboard.models import BracketMatch, RaceDaySlot, Submission
 from tests.support import constant
 from training import services
 from training.interchange.export import checkpoint_bytes
@@ -80,16 +81,22 @@ def test_a_facilitator_runs_a_race_day_on_the_broadcast_page(browser, daphne, ce
     fran = make_user("fran", alias="Fran", facilitator=True)
     alice = make_user("alice", alias="Alice")
     event = make_event(fran, name="Summit race day", min_laps=1, max_laps=1,
-                       off_track_penalty_s=1.0, collision_penalty_s=1.0)  # fmt: skip
+                       off_track_penalty_s=1.0, collision_penalty_s=1.0, bracket_size=4,
+                       bracket_laps=1, bracket_on_race_day=True)  # fmt: skip
     ada, bo = entry(event, "ada", 2.0), entry(event, "bo", 1.5)
+    Submission.objects.filter(pk=ada.pk).update(ranked=True, score_ms=30_000)
+    Submission.objects.filter(pk=bo.pk).update(ranked=True, score_ms=31_000)
     base = daphne.url
 
     control = page_of(browser, base, fran)
     control.goto(f"{base}/league/events/{event.pk}/race-day/")
-    for sub in (ada, bo):
-        control.select_option("[data-testid=entry]", str(sub.pk))
-        control.click("text=Add to the queue")
-        control.wait_for_selector(f"text={sub.model_name} joined the queue")
+    control.select_option("[data-testid=entry]", str(ada.pk))
+    control.click("text=Add to the queue")
+    control.wait_for_selector("text=ada-car joined the queue")
+    control.goto(f"{base}/league/events/{event.pk}/bracket/")
+    control.click("[data-testid=seed-bracket]")  # the final, ada v bo, joins the queue
+    control.wait_for_selector("[data-match='1-0']")
+    control.goto(f"{base}/league/events/{event.pk}/race-day/")
     control.click("text=Make a spectator link")
     spectator_url = control.input_value("#spectator-url")
     assert "watch=" in spectator_url
@@ -99,21 +106,31 @@ def test_a_facilitator_runs_a_race_day_on_the_broadcast_page(browser, daphne, ce
     screen.wait_for_selector("[data-live-status][data-state=live]")
     shot(screen, "broadcast-waiting")
 
-    for turn, sub in enumerate((ada, bo), start=1):
+    turns = [(f"{event.name}: ada-car", ["ada-car"]),
+             (f"{event.name}: round 1, match 1", ["ada-car", "bo-car"])]  # fmt: skip
+    for turn, (title, cars) in enumerate(turns, start=1):
         control.click("[data-testid=launch-next]")
-        control.wait_for_selector(f"text=On track: {event.name}: {sub.model_name}")
-        screen.wait_for_selector("[data-video][src^='data:image/jpeg']", timeout=RACE_S)
+        control.wait_for_selector(f"text=On track: {title}")
+        # This race's own pictures and timing, not the last race's still on the screen.
+        screen.wait_for_selector(f"[data-race-title]:text-is('{title}')", timeout=RACE_S)
+        screen.wait_for_selector("[data-winner]", state="hidden")
+        for car in cars:
+            screen.wait_for_selector(f"[data-timing] tr:has-text('{car}')", timeout=RACE_S)
+        screen.wait_for_selector("[data-video][src^='data:image/jpeg']")
         screen.wait_for_selector("[data-clock]:not(:text-is('0:00.0'))")
         screen.wait_for_selector("[data-timing] .bc-s.purple", timeout=RACE_S)
-        assert sub.model_name in screen.inner_text("[data-timing]")
         shot(screen, f"broadcast-race-{turn}")
         screen.wait_for_selector("[data-winner]:not([hidden])", timeout=RACE_S)
-        assert screen.inner_text("[data-winner-name]") == sub.model_name
+        slot = RaceDaySlot.objects.select_related("race").get(race__title=title)
+        assert slot.status == RaceDaySlot.Status.DONE
+        results = slot.race.results
+        winner = next(c for c in results["cars"] if c["model"] == results["winner"])
+        assert screen.inner_text("[data-winner-name]") == winner["name"]
+        assert slot.race.has_video and winner["finished"]
         shot(screen, f"broadcast-winner-{turn}")
-        slot = RaceDaySlot.objects.get(submission=sub)
-        assert slot.status == RaceDaySlot.Status.DONE and slot.race.has_video
-        assert slot.race.results["cars"][0]["finished"]
         control.reload()
+    event.refresh_from_db()
+    assert event.bracket and BracketMatch.objects.get(event=event).winner_id is not None
 
     racer = page_of(browser, base, alice)
     response = racer.goto(f"{base}/league/events/{event.pk}/race-day/")
