@@ -84,8 +84,6 @@ CONNECT_TIMEOUT_S = 90.0
 START_TIMEOUT_S = 90.0
 CARS = (("FRONT_FACING_CAMERA",), ("STEREO_CAMERAS", "LIDAR"))
 BOTS, BOT_SPEED_MPS = 6, 0.75
-FRAME_PREFIX = b'{"type": "frame"'
-CLOCK_KEY = b'"clock_s": '
 READY = "READY"
 
 
@@ -238,14 +236,11 @@ def mask(payload: bytes) -> bytes:
 
 
 def race_clock(payload: bytes) -> float | None:
-    """The ``timing.clock_s`` at the end of a frame message (after its JPEG), or None."""
-    at = payload.rfind(CLOCK_KEY, max(0, len(payload) - 4096))
-    if at < 0:
-        return None
-    value = payload[at + len(CLOCK_KEY) : at + len(CLOCK_KEY) + 24].split(b",")[0]
-    try:
-        return float(value.split(b"}")[0])
-    except ValueError:
+    """The ``timing.clock_s`` of a frame message (its JSON header), or None."""
+    try:  # training.worker.racelive.frame_payload: 4-byte length, JSON header, JPEG
+        (length,) = struct.unpack("!I", payload[:4])
+        return float(json.loads(payload[4 : 4 + length])["timing"]["clock_s"])
+    except (ValueError, KeyError, TypeError, struct.error):
         return None
 
 
@@ -269,7 +264,7 @@ async def view(url: str, times: list[tuple[float, float | None]], opened: asynci
         opened.set_result(exc)
         return
     opened.set_result(True)
-    first = b""  # the start of the message being received (fragments)
+    message = b""  # the binary message being received (its fragments so far)
     try:
         while True:
             b0, b1 = await reader.readexactly(2)
@@ -285,10 +280,11 @@ async def view(url: str, times: list[tuple[float, float | None]], opened: asynci
             if opcode == 0x9:  # ping
                 writer.write(bytes([0x8A, 0x80 | len(payload)]) + mask(payload))
                 continue
-            if opcode in (0x1, 0x0):
-                first = payload[: len(FRAME_PREFIX)] if opcode == 0x1 else first
-                if fin and first.startswith(FRAME_PREFIX):
-                    times.append((time.monotonic(), race_clock(payload)))
+            if opcode in (0x2, 0x0):  # a frame: binary, maybe in fragments
+                message = payload if opcode == 0x2 else message + payload
+                if fin:
+                    times.append((time.monotonic(), race_clock(message)))
+                    message = b""
     except (OSError, asyncio.IncompleteReadError):
         return
     finally:

@@ -4,9 +4,12 @@ Whoever can see the event joins its broadcast group, and so does anyone without 
 who brings the event's spectator token (an event setting; read-only: viewers only listen).
 Anyone else is refused with close code 4404 before the handshake completes. Messages, as JSON:
 
-- ``{"type": "frame", "frame": <JPEG, base64>, "timing": {...}}``: each frame of the race on
-  track, encoded once by its worker at 15 frames/s (real time) however many watch, with the
-  timing tower (:func:`training.worker.racelive.race_timing`);
+- a binary message for each frame of the race on track: a 4-byte big-endian length, that many
+  bytes of JSON ``{"timing": {...}, "t": <unix time>}``, then the JPEG; built once by the
+  race's worker at 15 frames/s (real time) however many watch, and forwarded untouched (the
+  timing tower: :func:`training.worker.racelive.race_timing`). A frame older than
+  :data:`STALE_FRAME_S` when its turn comes is dropped: a slow viewer skips frames rather
+  than fall seconds behind the race;
 - ``{"type": "status", ...}``: a race went on track (``started``), or ended (``over``, with
   ``winner`` and ``results``), or the queue changed (``queue``).
 """
@@ -14,6 +17,7 @@ Anyone else is refused with close code 4404 before the handshake completes. Mess
 from __future__ import annotations
 
 import secrets
+import time
 from typing import Any
 from urllib.parse import parse_qs
 
@@ -26,6 +30,8 @@ from leaderboard.models import Event
 from training import live
 
 NOT_FOUND = 4404
+STALE_FRAME_S = 0.5
+"""A frame this old (seconds since the worker built it) is not sent any more."""
 
 
 def may_watch(user, event: Event, token: str) -> bool:
@@ -68,8 +74,9 @@ class BroadcastConsumer(AsyncJsonWebsocketConsumer):
             await database_sync_to_async(live.mark_watching)(self.group)
 
     async def race_frame(self, message: dict) -> None:
-        await self.send_json({"type": "frame", "frame": message["frame"],
-                              "timing": message["timing"]})  # fmt: skip
+        if time.time() - float(message.get("t", 0.0)) > STALE_FRAME_S:
+            return
+        await self.send(bytes_data=message["payload"])
 
     async def raceday_status(self, message: dict) -> None:
         await self.send_json({**{k: v for k, v in message.items() if k != "type"},

@@ -84,13 +84,13 @@ class EventForm(forms.Form):
                                      initial=0.75)  # fmt: skip
     bot_lane_changes = forms.BooleanField(required=False)
     bracket_size = forms.TypedChoiceField(
-        label="Head-to-head bracket", coerce=int, initial=0,
+        label="Head-to-head bracket", coerce=int, initial=0, required=False, empty_value=0,
         choices=[(0, "None"), (4, "Top 4"), (8, "Top 8"), (16, "Top 16"), (32, "Top 32")],
         help_text="After qualifying, the best qualifiers race one against one, 1 against the "
         "last, until one is left.",
     )  # fmt: skip
     bracket_laps = forms.IntegerField(label="Laps per bracket race", min_value=1, max_value=10,
-                                      initial=2)  # fmt: skip
+                                      initial=2, required=False)  # fmt: skip
     bracket_on_race_day = forms.BooleanField(
         label="Bracket races wait for the race day", required=False,
         help_text="On: each match joins the race-day queue and a facilitator launches it live. "
@@ -107,6 +107,9 @@ class EventForm(forms.Form):
             now = timezone.now().replace(second=0, microsecond=0)
             self.initial.setdefault("opens_at", now)
             self.initial.setdefault("closes_at", now + timedelta(days=7))
+
+    def clean_bracket_laps(self) -> int:
+        return self.cleaned_data.get("bracket_laps") or 2
 
     def event_fields(self) -> dict:
         return dict(self.cleaned_data)

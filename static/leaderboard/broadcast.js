@@ -1,7 +1,8 @@
 // The race-day broadcast page: one websocket (/ws/league/events/<id>/broadcast/[?watch=]).
-// Each "frame" message carries the race's picture (a JPEG, encoded once by the worker at 15
-// frames a second, paced at real time) and its timing; a "status" message says a race went on
-// track or ended (with its winner), and the leaderboard beside the video is fetched again.
+// Each frame is a binary message (built once by the worker at 15 frames a second, paced at
+// real time): a 4-byte big-endian length, that much JSON ({"timing": ..., "t": ...}), then the
+// JPEG. A "status" text message says a race went on track or ended (with its winner), and the
+// leaderboard beside the video is fetched again.
 (function () {
   const body = document.querySelector("[data-broadcast]");
   if (!body) return;
@@ -84,12 +85,25 @@
     overlay.hidden = false;
   }
 
+  let shown = null;  // the object URL on screen, released when the next frame replaces it
+  function showFrame(buffer) {
+    const length = new DataView(buffer).getUint32(0);
+    const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, length)));
+    const url = URL.createObjectURL(new Blob([new Uint8Array(buffer, 4 + length)], { type: "image/jpeg" }));
+    video.src = url;
+    if (shown) URL.revokeObjectURL(shown);
+    shown = url;
+    renderTiming(header.timing);
+    if (!header.timing.over) overlay.hidden = true;
+  }
+
   let delay = 1000;
   let pinger = null;
   function connect() {
     const scheme = location.protocol === "https:" ? "wss" : "ws";
     const query = watch ? `?watch=${encodeURIComponent(watch)}` : "";
     const socket = new WebSocket(`${scheme}://${location.host}/ws/league/events/${eventId}/broadcast/${query}`);
+    socket.binaryType = "arraybuffer";
     socket.onopen = () => {
       delay = 1000;
       live.dataset.state = "live";
@@ -97,12 +111,9 @@
       pinger = setInterval(() => socket.send("{}"), 10000);  // keeps the worker sending frames
     };
     socket.onmessage = (e) => {
+      if (typeof e.data !== "string") { showFrame(e.data); return; }
       const msg = JSON.parse(e.data);
-      if (msg.type === "frame") {
-        video.src = `data:image/jpeg;base64,${msg.frame}`;
-        renderTiming(msg.timing);
-        if (!msg.timing.over) overlay.hidden = true;
-      } else if (msg.type === "status") {
+      if (msg.type === "status") {
         if (msg.started) { overlay.hidden = true; title.textContent = msg.title || "On track"; }
         if (msg.over) { showWinner(msg); refreshBoard(); }
       }

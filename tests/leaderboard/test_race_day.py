@@ -4,6 +4,8 @@ may run it (Fran) and who may only watch (Alice, and anyone with the spectator l
 
 from __future__ import annotations
 
+import time
+
 import pytest
 from asgiref.sync import async_to_sync
 from channels.routing import URLRouter
@@ -18,6 +20,7 @@ from leaderboard.models import Notification, RaceDaySlot, Submission
 from leaderboard.routing import websocket_urlpatterns
 from training import live
 from training.models import JobStatus, RaceJob
+from training.worker.racelive import frame_payload, read_frame_payload
 
 pytestmark = pytest.mark.django_db
 
@@ -155,10 +158,14 @@ def test_the_broadcast_socket_relays_frames_to_spectators_with_the_link(fran):
 
         layer = get_channel_layer()
         timing = {"clock_s": 1.0, "laps": 2, "over": False, "cars": []}
-        await layer.group_send(
-            broadcast_group(event.pk), {"type": "race.frame", "frame": "AAAA", "timing": timing}
-        )
-        frame = await viewer.receive_json_from(timeout=10)
+        now = time.time()
+        stale = frame_payload(b"old-jpeg", timing, now - 5)
+        fresh = frame_payload(b"\xff\xd8jpeg", timing, now)
+        for payload, sent in ((stale, now - 5), (fresh, now)):
+            await layer.group_send(
+                broadcast_group(event.pk), {"type": "race.frame", "payload": payload, "t": sent}
+            )
+        frame = await viewer.receive_from(timeout=10)
         await layer.group_send(
             broadcast_group(event.pk), {"type": "raceday.status", "over": True, "winner": "Ada"}
         )
@@ -168,7 +175,8 @@ def test_the_broadcast_socket_relays_frames_to_spectators_with_the_link(fran):
 
     refused, code, ok, frame, status = async_to_sync(scenario)()
     assert not refused and code == 4404
-    assert ok and frame == {"type": "frame", "frame": "AAAA", "timing": {
-        "clock_s": 1.0, "laps": 2, "over": False, "cars": []}}  # fmt: skip
+    header, jpeg = read_frame_payload(frame)  # the stale frame was dropped, the fresh one sent
+    assert ok and jpeg == b"\xff\xd8jpeg"
+    assert header["timing"] == {"clock_s": 1.0, "laps": 2, "over": False, "cars": []}
     assert status == {"type": "status", "over": True, "winner": "Ada"}
     assert live.is_watched(broadcast_group(event.pk))  # a viewer keeps the worker sending

@@ -116,7 +116,7 @@ def test_a_facilitator_runs_a_race_day_on_the_broadcast_page(browser, daphne, ce
         screen.wait_for_selector("[data-winner]", state="hidden")
         for car in cars:
             screen.wait_for_selector(f"[data-timing] tr:has-text('{car}')", timeout=RACE_S)
-        screen.wait_for_selector("[data-video][src^='data:image/jpeg']")
+        screen.wait_for_selector("[data-video][src^='blob:']")
         screen.wait_for_selector("[data-clock]:not(:text-is('0:00.0'))")
         screen.wait_for_selector("[data-timing] .bc-s.purple", timeout=RACE_S)
         shot(screen, f"broadcast-race-{turn}")

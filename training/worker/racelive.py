@@ -2,13 +2,20 @@
 (clock, laps, positions, sector colours), and sent once to the race's Channels group however
 many people watch; paced at real time for a live race day.
 
+A frame goes out as one binary websocket message, built here once for every viewer
+(:func:`frame_payload`): a 4-byte big-endian length, that many bytes of JSON (``{"timing":
+..., "t": <unix time>}``), then the JPEG. The consumer forwards it untouched (no per-viewer
+encoding, no base64) and drops a frame that is already stale, so a slow viewer falls behind
+by frames, never by seconds.
+
 Frames are encoded only while someone watches the race (or a race day paces it); a background
 sender drops a stale frame rather than slow the race (:class:`training.live.FramePublisher`).
 """
 
 from __future__ import annotations
 
-import base64
+import json
+import struct
 import time
 
 import cv2
@@ -18,7 +25,7 @@ from racing.headtohead import CarState, HeadToHeadRace
 from racing.racecar import sector_colours
 from training import live
 
-JPEG_QUALITY = 80
+JPEG_QUALITY = 70
 FRAME_S = 1.0 / 15.0
 """A frame of race clock: paced races show one every 1/15 s of wall time."""
 
@@ -51,6 +58,19 @@ def race_timing(race: HeadToHeadRace) -> dict:
             "cars": cars}  # fmt: skip
 
 
+def frame_payload(jpeg: bytes, timing: dict, sent_at: float) -> bytes:
+    """One frame as the broadcast page receives it (see the module docstring)."""
+    header = json.dumps({"timing": timing, "t": round(sent_at, 3)},
+                        separators=(",", ":")).encode()  # fmt: skip
+    return struct.pack("!I", len(header)) + header + jpeg
+
+
+def read_frame_payload(payload: bytes) -> tuple[dict, bytes]:
+    """``(header, jpeg)`` of a frame message (for tests and benchmarks)."""
+    (length,) = struct.unpack("!I", payload[:4])
+    return json.loads(payload[4 : 4 + length]), payload[4 + length :]
+
+
 class RaceBroadcast:
     """``frame(rgb, race)`` for :func:`training.rl.race.run_race`'s ``on_frame``: each frame
     encoded once and sent to every group in ``groups`` (the race's own, a race day's)."""
@@ -78,8 +98,9 @@ class RaceBroadcast:
         if not ok:
             return
         self.encodes += 1
-        message = {"type": "race.frame", "frame": base64.b64encode(jpeg).decode(),
-                   "timing": race_timing(race)}  # fmt: skip
+        now = time.time()
+        message = {"type": "race.frame", "t": now,
+                   "payload": frame_payload(jpeg.tobytes(), race_timing(race), now)}  # fmt: skip
         for publisher in self.publishers:
             publisher.offer(message)
 
