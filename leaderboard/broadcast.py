@@ -6,32 +6,105 @@ Anyone else is refused with close code 4404 before the handshake completes. Mess
 
 - a binary message for each frame of the race on track: a 4-byte big-endian length, that many
   bytes of JSON ``{"timing": {...}, "t": <unix time>}``, then the JPEG; built once by the
-  race's worker at 15 frames/s (real time) however many watch, and forwarded untouched (the
-  timing tower: :func:`training.worker.racelive.race_timing`). A frame older than
-  :data:`STALE_FRAME_S` when its turn comes is dropped: a slow viewer skips frames rather
-  than fall seconds behind the race;
+  race's worker at 15 frames/s (real time) however many watch, published once to Redis, and
+  written untouched by each web process's :class:`FrameHub` to its viewers (the timing tower:
+  :func:`training.worker.racelive.race_timing`). A frame older than :data:`STALE_FRAME_S`
+  when it reaches the hub is dropped: a lagging process skips frames rather than fall seconds
+  behind the race;
 - ``{"type": "status", ...}``: a race went on track (``started``), or ended (``over``, with
   ``winner`` and ``results``), or the queue changed (``queue``).
 """
 
 from __future__ import annotations
 
+import asyncio
+import json
+import logging
 import secrets
+import struct
 import time
 from typing import Any
 from urllib.parse import parse_qs
 
+import redis.asyncio as aioredis
 from channels.db import database_sync_to_async
 from channels.generic.websocket import AsyncJsonWebsocketConsumer
+from django.conf import settings
 
 from leaderboard.access import can_view_event
 from leaderboard.live import broadcast_group
 from leaderboard.models import Event
 from training import live
 
+log = logging.getLogger(__name__)
 NOT_FOUND = 4404
 STALE_FRAME_S = 0.5
 """A frame this old (seconds since the worker built it) is not sent any more."""
+
+
+def frame_age_s(payload: bytes) -> float:
+    """Seconds since the worker built this frame (its header's ``t``); inf when unreadable."""
+    try:
+        (length,) = struct.unpack("!I", payload[:4])
+        return time.time() - float(json.loads(payload[4 : 4 + length])["t"])
+    except (ValueError, KeyError, TypeError, struct.error):
+        return float("inf")
+
+
+class FrameHub:
+    """A web process's one subscription per broadcast channel, fanned out to its viewers: a
+    frame crosses Redis once per process, and each viewer costs only its websocket write."""
+
+    viewers: dict[str, set[AsyncJsonWebsocketConsumer]] = {}
+    tasks: dict[str, asyncio.Task] = {}
+
+    @classmethod
+    def join(cls, channel: str, viewer: AsyncJsonWebsocketConsumer) -> None:
+        cls.viewers.setdefault(channel, set()).add(viewer)
+        task = cls.tasks.get(channel)
+        loop = asyncio.get_running_loop()
+        if task is None or task.done() or task.get_loop() is not loop:
+            cls.tasks[channel] = loop.create_task(cls._listen(channel))
+
+    @classmethod
+    def leave(cls, channel: str, viewer: AsyncJsonWebsocketConsumer) -> None:
+        viewers = cls.viewers.get(channel, set())
+        viewers.discard(viewer)
+        if not viewers:
+            cls.viewers.pop(channel, None)
+            task = cls.tasks.pop(channel, None)
+            if task is not None and not task.done():
+                task.cancel()
+
+    @classmethod
+    async def _listen(cls, channel: str) -> None:
+        """Subscribe (again after a Redis outage, every second) and write each fresh frame
+        to every viewer of this process."""
+        while channel in cls.viewers:
+            client = aioredis.Redis.from_url(settings.REDIS_URL)
+            pubsub = client.pubsub()
+            try:
+                await pubsub.subscribe(channel)
+                async for message in pubsub.listen():
+                    if message.get("type") != "message":
+                        continue
+                    data = message["data"]
+                    if frame_age_s(data) > STALE_FRAME_S:
+                        continue
+                    for viewer in list(cls.viewers.get(channel, ())):
+                        try:
+                            await viewer.send(bytes_data=data)
+                        except Exception:  # noqa: BLE001 - one viewer gone: the others go on
+                            log.debug("could not send a frame to a viewer", exc_info=True)
+            except aioredis.RedisError:
+                log.warning("broadcast %s: Redis unavailable; subscribing again", channel)
+                await asyncio.sleep(1.0)
+            finally:
+                try:
+                    await pubsub.aclose()
+                    await client.aclose()
+                except aioredis.RedisError:
+                    pass
 
 
 def may_watch(user, event: Event, token: str) -> bool:
@@ -62,21 +135,18 @@ class BroadcastConsumer(AsyncJsonWebsocketConsumer):
         self.group = broadcast_group(event.pk)
         await self.channel_layer.group_add(self.group, self.channel_name)
         await self.accept()
+        FrameHub.join(live.broadcast_channel(self.group), self)
         await database_sync_to_async(live.mark_watching)(self.group)
 
     async def disconnect(self, code: int) -> None:
         if self.group:
+            FrameHub.leave(live.broadcast_channel(self.group), self)
             await self.channel_layer.group_discard(self.group, self.channel_name)
 
     async def receive_json(self, content: Any, **kwargs: Any) -> None:
         """Viewers only listen; a ping keeps the worker sending frames."""
         if self.group:
             await database_sync_to_async(live.mark_watching)(self.group)
-
-    async def race_frame(self, message: dict) -> None:
-        if time.time() - float(message.get("t", 0.0)) > STALE_FRAME_S:
-            return
-        await self.send(bytes_data=message["payload"])
 
     async def raceday_status(self, message: dict) -> None:
         await self.send_json({**{k: v for k, v in message.items() if k != "type"},

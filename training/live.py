@@ -172,3 +172,67 @@ class FramePublisher:
             r.expire(key, FRAME_COUNTS_TTL_S)
         except redis.RedisError:
             log.warning("could not record the frame counts of %s", self.group)
+
+
+def broadcast_channel(group: str) -> str:
+    """The Redis pub/sub channel of a broadcast's frames (:class:`BroadcastPublisher`)."""
+    return f"{settings.REDIS_PREFIX or ''}racecraft:broadcast:{group}"
+
+
+class BroadcastPublisher:
+    """Frames for a crowd: each frame PUBLISHed once to the group's Redis pub/sub channel
+    (:func:`broadcast_channel`), where every web process holds one subscription and writes the
+    frame to its own viewers (``leaderboard.broadcast.FrameHub``). Unlike a Channels group,
+    which keeps a copy of every message for every viewer in Redis, a frame crosses Redis once
+    per web process however many watch. A background thread sends, keeping only the newest
+    frame when it lags, so the race never waits on Redis."""
+
+    def __init__(self, group: str) -> None:
+        self.group = group
+        self.channel = broadcast_channel(group)
+        self._queue: queue.Queue = queue.Queue(maxsize=2)
+        self._stop = threading.Event()
+        self._checked = 0.0
+        self._watched = False
+        self.encoded = 0
+        self.sent = 0
+        self._thread = threading.Thread(target=self._run, name=f"broadcast-{group}", daemon=True)
+        self._thread.start()
+
+    def watched(self) -> bool:
+        now = time.monotonic()
+        if now - self._checked > 1.0:
+            self._checked = now
+            self._watched = is_watched(self.group)
+        return self._watched
+
+    def offer(self, payload: bytes) -> None:
+        self.encoded += 1
+        try:
+            self._queue.put_nowait(payload)
+        except queue.Full:
+            try:
+                self._queue.get_nowait()  # drop the stale frame
+            except queue.Empty:
+                pass
+            try:
+                self._queue.put_nowait(payload)
+            except queue.Full:
+                pass
+
+    def _run(self) -> None:
+        client = _redis()
+        while not self._stop.is_set():
+            try:
+                payload = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
+                client.publish(self.channel, payload)
+                self.sent += 1
+            except redis.RedisError:
+                log.warning("could not publish a frame to %s", self.channel, exc_info=True)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)

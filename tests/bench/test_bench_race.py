@@ -5,7 +5,6 @@ sane. No timing target is asserted: the figures depend on the machine."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 
@@ -39,13 +38,14 @@ def test_a_viewer_that_got_nothing_has_one_gap_the_whole_window(bench) -> None:
     assert viewer.delay_max_s != viewer.delay_max_s  # nan: no delay known
 
 
-def test_the_race_clock_is_read_off_the_end_of_a_frame_message(bench) -> None:
-    message = {"type": "frame", "frame": "A" * 50_000,
-               "timing": {"clock_s": 12.47, "laps": 10, "over": False, "cars": []}}  # fmt: skip
-    payload = json.dumps(message).encode()
-    assert payload.startswith(bench.FRAME_PREFIX)
+def test_the_race_clock_is_read_off_a_frame_message(bench) -> None:
+    from training.worker.racelive import frame_payload
+
+    timing = {"clock_s": 12.47, "laps": 10, "over": False, "cars": []}
+    payload = frame_payload(b"\xff\xd8" + b"J" * 50_000, timing, 1_700_000_000.0)
     assert bench.race_clock(payload) == pytest.approx(12.47)
-    assert bench.race_clock(b'{"type": "frame", "frame": ""}') is None
+    assert bench.race_clock(b"\x00\x00\x00\x09not json!") is None
+    assert bench.race_clock(b"") is None
 
 
 def race(bench, seed: int, steps_per_s: float, cpu_s: float, live=None):

@@ -200,8 +200,10 @@ class VideoWriter:
         self.add_frame(frame)
 
     def add_frame(self, rgb: np.ndarray) -> None:
-        """One ``(height, width, 3)`` RGB frame as it is."""
-        video_frame = self._av.VideoFrame.from_ndarray(rgb, format="rgb24")
+        """One ``(height, width, 3)`` RGB frame as it is. OpenCV converts it to the encoder's
+        YUV 4:2:0 (several times faster than libswscale's default path here)."""
+        yuv = cv2.cvtColor(rgb, cv2.COLOR_RGB2YUV_I420)
+        video_frame = self._av.VideoFrame.from_ndarray(yuv, format="yuv420p")
         for packet in self.stream.encode(video_frame):
             self.container.mux(packet)
         self.frames += 1
