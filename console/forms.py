@@ -71,6 +71,45 @@ class ImportForm(forms.Form):
         return upload
 
 
+class _UnsentTextInput(forms.TextInput):
+    """A text input whose value never comes back in a page (an access key)."""
+
+    def format_value(self, value: Any) -> None:
+        return None
+
+
+class BucketImportForm(forms.Form):
+    """A model straight from a DeepRacer-for-Cloud bucket (MinIO or S3). The keys are read for
+    this request only: the secret key's input never shows it back (``render_value=False``)."""
+
+    name = forms.CharField(**_name_field)
+    description = forms.CharField(max_length=255, required=False)
+    endpoint = forms.CharField(
+        label="S3 endpoint",
+        max_length=255,
+        help_text="host:port of the MinIO or S3 server, e.g. localhost:9000 or s3.amazonaws.com.",
+    )
+    bucket = forms.CharField(max_length=63, help_text="DR_LOCAL_S3_BUCKET, e.g. bucket.")
+    prefix = forms.CharField(
+        label="Model prefix",
+        max_length=255,
+        required=False,
+        help_text="DR_LOCAL_S3_MODEL_PREFIX, e.g. rl-deepracer-sagemaker: the folder holding "
+        "model/, ip/ and reward_function.py. Its logs are not read.",
+    )
+    access_key = forms.CharField(
+        label="Access key", max_length=128, widget=_UnsentTextInput(attrs={"autocomplete": "off"})
+    )
+    secret_key = forms.CharField(
+        label="Secret key",
+        max_length=128,
+        strip=False,
+        widget=forms.PasswordInput(attrs={"autocomplete": "off"}, render_value=False),
+        help_text="Used for this import only; never stored.",
+    )
+    secure = forms.BooleanField(label="Use HTTPS", required=False)
+
+
 class CloneForm(forms.Form):
     """What a clone may change (DeepRacer): name, track, reward function, stop condition."""
 

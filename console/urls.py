@@ -3,7 +3,7 @@
 /                          home                 /tracks/, /tracks/<id>.png   track gallery
 /tracks/<id>/race.png      a race's objects on the track (query: the race settings, direction)
 /accounts/signup|login|logout/                  /admin/                      Django admin
-/models/                   your models          /models/new/, /models/import/
+/models/                   your models          /models/new/, /models/import/[bucket/]
 /models/<id>/              a model's page       .../clone/, .../delete/, .../train/, .../reward/
 /models/<id>/download/<car|virtual|logs>/       /evaluations/<id>/video.mp4
 /models/<id>/analysis/     charts of the logs   .../data/<chart>.<json|csv>, .../replay/
@@ -57,6 +57,7 @@ urlpatterns = [
     path("models/", models.model_list, name="models"),
     path("models/new/", models.model_create, name="model-create"),
     path("models/import/", models.model_import, name="model-import"),
+    path("models/import/bucket/", models.model_import_bucket, name="model-import-bucket"),
     path("models/<int:model_id>/", model_page.model_detail, name="model-detail"),
     path("models/<int:model_id>/clone/", models.model_clone, name="model-clone"),
     path("models/<int:model_id>/delete/", models.model_delete, name="model-delete"),

@@ -12,15 +12,16 @@ from django.contrib.auth.decorators import login_required
 from django.http import HttpRequest, HttpResponse
 from django.shortcuts import redirect, render
 from django.urls import reverse
+from django.views.decorators.debug import sensitive_post_parameters, sensitive_variables
 from django.views.decorators.http import require_http_methods, require_safe
 
 from console import tracks
-from console.forms import CloneForm, ImportForm, RewardForm
+from console.forms import BucketImportForm, CloneForm, ImportForm, RewardForm
 from console.model_form import HP_FIELDS, PPO_ONLY, SAC_ONLY, ModelCreateForm
 from console.views.owned import owned_model
 from console.views.service_calls import attempt_on_form, attempt_validated
 from training import catalog, selectors, services
-from training.services import background
+from training.services import background, bucket_imports
 
 
 @login_required
@@ -210,10 +211,39 @@ def model_import(request: HttpRequest) -> HttpResponse:
         )
         if task_id is not None:
             return redirect(f"{reverse('model-import')}?task={task_id}")
+    return _import_page(request, form, BucketImportForm())
+
+
+@login_required
+@require_http_methods(["POST"])
+@sensitive_post_parameters("access_key", "secret_key")
+@sensitive_variables()
+def model_import_bucket(request: HttpRequest) -> HttpResponse:
+    """The model is read from the DeepRacer-for-Cloud bucket in this request (bounded by the
+    import's size limits and short timeouts), stored as an upload is, and imported by a worker
+    the same way (training/services/bucket_imports.py). The keys live only in this request:
+    never stored, queued or logged, and hidden from Django's error reports."""
+    form = BucketImportForm(request.POST)
+    if form.is_valid():
+        task_id, _ = attempt_on_form(
+            form,
+            lambda: bucket_imports.model_import_from_bucket_start(
+                owner=request.user, **form.cleaned_data
+            ),
+        )
+        if task_id is not None:
+            return redirect(f"{reverse('model-import')}?task={task_id}")
+    return _import_page(request, ImportForm(), form)
+
+
+def _import_page(
+    request: HttpRequest, form: ImportForm, bucket_form: BucketImportForm
+) -> HttpResponse:
     task = request.GET.get("task", "")
     poll = reverse("background-task", args=[task]) if task.isalnum() else ""
-    status = 400 if form.is_bound and form.errors else 200
-    context = {"nav": "models", "form": form, "task_poll": poll}
+    bound = [f for f in (form, bucket_form) if f.is_bound]
+    status = 400 if any(f.errors for f in bound) else 200
+    context = {"nav": "models", "form": form, "bucket_form": bucket_form, "task_poll": poll}
     return render(request, "models/import.html", context, status=status)
 
 

@@ -26,13 +26,14 @@ Every failure is an :class:`~training.interchange.archive.ArchiveError` naming t
 Graphs and checkpoints are measured before anything in them is built
 (:mod:`training.interchange.graphbudget`). :func:`import_model_upload` takes either kind of
 upload, or Racecraft's own; the worker runs it in a bounded child process
-(:mod:`training.interchange.bounded`).
+(:mod:`training.interchange.bounded`). :func:`model_folder_plan` names the files of a
+DeepRacer-for-Cloud bucket prefix to fetch for an import (and none of its logs).
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import BinaryIO
 
@@ -270,3 +271,38 @@ def _is_deepracer_file(name: str) -> bool:
         or ".ckpt." in name
         or name.rsplit("/", 1)[-1] == ".coach_checkpoint"
     )
+
+
+_TRAINING_PARAMS_RE = re.compile(r"^training_params(?:_(\d+))?\.yaml$")
+
+
+def model_folder_plan(
+    sizes: Mapping[str, int], read: Callable[[Iterable[str]], Mapping[str, bytes]]
+) -> dict[str, str]:
+    """Which files of a DeepRacer-for-Cloud model prefix an import reads: name in the archive
+    → path in the folder, from the folder's listing (``sizes``: path relative to the prefix →
+    bytes; only its top, ``model/`` and ``ip/`` need be listed) and the content of the
+    checkpoint indexes (``read(paths)``, which fetches them). Only the checkpoint
+    :func:`import_deepracer_model` would import is named (its frozen graph, else its
+    TensorFlow checkpoint files), never logs or metrics. The first worker's training
+    parameters (``training_params.yaml``, else the lowest ``training_params_<n>.yaml``) are
+    named ``training_params.yaml``. Raises :class:`ArchiveError` saying what is missing."""
+    if not sizes:
+        raise ArchiveError("there is nothing there")
+    if "model/model_metadata.json" not in sizes:
+        raise ArchiveError("no model/model_metadata.json")
+    indexes = [n for n in ("model/deepracer_checkpoints.json", "model/.coach_checkpoint")
+               if n in sizes]  # fmt: skip
+    source = _choose_source({**dict.fromkeys(sizes, b""), **read(indexes)})
+    weights = [source]
+    if not source.endswith(".pb"):
+        stem = source.removesuffix(".index")
+        weights += sorted(n for n in sizes if n.startswith(f"{stem}.data-"))
+    plan = {n: n for n in ("model/model_metadata.json", *indexes, *weights)}
+    for name in ("ip/hyperparameters.json", "hyperparameters.json", "reward_function.py"):
+        if name in sizes:
+            plan[name] = name
+    params = sorted((int(m.group(1) or 0), n) for n in sizes if (m := _TRAINING_PARAMS_RE.match(n)))
+    if params:
+        plan["training_params.yaml"] = params[0][1]
+    return plan

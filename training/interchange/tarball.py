@@ -19,6 +19,11 @@ class ExportError(ValueError):
 
 def deterministic_tar_gz(files: Mapping[str, bytes]) -> bytes:
     """A tar.gz of ``files`` (relative name → bytes) that is byte-for-byte reproducible."""
+    return gzip.compress(deterministic_tar(files), compresslevel=6, mtime=0)
+
+
+def deterministic_tar(files: Mapping[str, bytes]) -> bytes:
+    """:func:`deterministic_tar_gz` uncompressed (weights hardly compress; no time spent)."""
     raw = io.BytesIO()
     with tarfile.open(fileobj=raw, mode="w", format=tarfile.PAX_FORMAT) as tar:
         for name in sorted(files):
@@ -32,4 +37,4 @@ def deterministic_tar_gz(files: Mapping[str, bytes]) -> bytes:
             info.uid = info.gid = 0
             info.uname = info.gname = ""
             tar.addfile(info, io.BytesIO(data))
-    return gzip.compress(raw.getvalue(), compresslevel=6, mtime=0)
+    return raw.getvalue()

@@ -5,6 +5,7 @@ a message a user can act on. Side effects on other processes start only after th
 
 - :mod:`~training.services.models`: create, clone, delete a model, change its reward function.
 - :mod:`~training.services.model_imports`: a model from an uploaded archive.
+- :mod:`~training.services.bucket_imports`: a model straight from a DeepRacer-for-Cloud bucket.
 - :mod:`~training.services.model_files`: what a model's folder in the store says about it;
   a store failure as a user reads it.
 - :mod:`~training.services.jobs`: the one state machine of training and evaluation jobs.
@@ -23,6 +24,7 @@ Reads go through :mod:`training.selectors`.
 """
 
 from training.errors import RewardRejected, ServiceError
+from training.services.bucket_imports import model_import_from_bucket
 from training.services.checks import (
     MAX_MINUTES,
     MIN_MINUTES,
@@ -112,6 +114,7 @@ __all__ = [
     "model_create",
     "model_delete",
     "model_import",
+    "model_import_from_bucket",
     "model_mark_checkpoint",
     "model_freeze",
     "model_metadata",

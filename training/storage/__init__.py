@@ -14,7 +14,8 @@ leave the store. Prefixes passed to :meth:`ObjectStore.list` and
 The per-model layout (DeepRacer-for-Cloud names) is ``training.interchange.layout.ModelKeys``.
 
 The rooms: base.py (errors, keys, the :class:`ObjectStore` interface, the bucket name rule),
-local.py (:class:`LocalStore`), s3.py (:class:`MinioStore`), retrying.py
+local.py (:class:`LocalStore`), s3.py (:class:`MinioStore`; :func:`read_model_folder`, a
+model folder out of someone else's bucket), retrying.py
 (:class:`RetryingStore`), config.py (:func:`store_from_settings`).
 """
 
@@ -25,6 +26,8 @@ from training.storage.base import (
     DEFAULT_BUCKET,
     MAX_KEY_BYTES,
     OCTET_STREAM,
+    BucketAccess,
+    BucketError,
     ObjectNotFound,
     ObjectStore,
     StoreError,
@@ -35,13 +38,15 @@ from training.storage.base import (
 from training.storage.config import store_from_settings
 from training.storage.local import LocalStore
 from training.storage.retrying import RetryingStore
-from training.storage.s3 import MinioStore
+from training.storage.s3 import MinioStore, read_model_folder
 
 __all__ = [
     "BUCKET_PREFIX",
     "DEFAULT_BUCKET",
     "MAX_KEY_BYTES",
     "OCTET_STREAM",
+    "BucketAccess",
+    "BucketError",
     "LocalStore",
     "MinioStore",
     "ObjectNotFound",
@@ -50,6 +55,7 @@ __all__ = [
     "StoreError",
     "StoreUnavailable",
     "check_bucket_name",
+    "read_model_folder",
     "store_from_settings",
     "validate_key",
 ]

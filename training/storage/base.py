@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
 
 BUCKET_PREFIX = "deepracer"
 DEFAULT_BUCKET = "deepracer-models"
@@ -135,3 +136,36 @@ def check_bucket_name(bucket: str) -> str:
             "(3-63 lowercase letters, digits, dots or hyphens)"
         )
     return bucket
+
+
+@dataclass(frozen=True)
+class BucketAccess:
+    """A folder of someone else's bucket (a DeepRacer-for-Cloud model prefix) and the keys to
+    read it, for one read (:func:`training.storage.s3.read_model_folder`); never kept.
+
+    ``endpoint`` is ``host[:port]``; a leading ``http://`` or ``https://`` decides ``secure``.
+    ``prefix`` has no leading or trailing ``/`` (``""``: the bucket's top). The keys are left
+    out of ``repr`` (so out of tracebacks' locals and logs); ``url`` names the folder without
+    them.
+    """
+
+    endpoint: str
+    bucket: str
+    prefix: str
+    access_key: str = field(repr=False)
+    secret_key: str = field(repr=False)
+    secure: bool = True
+    region: str = ""
+
+    @property
+    def url(self) -> str:
+        return f"s3://{self.bucket}/{self.prefix}" if self.prefix else f"s3://{self.bucket}"
+
+
+class BucketError(StoreError):
+    """Reading someone else's bucket failed; ``reason`` says how, for the caller to word it
+    and place it: ``endpoint`` (not a ``host:port``), ``unreachable`` (refused, unknown host,
+    timed out, not an S3 server), ``access_key`` (unknown key), ``secret_key`` (wrong secret),
+    ``denied`` (the keys may not read this bucket), ``bucket`` (no such bucket or a bad
+    name), ``prefix`` (a bad folder name), ``too_big`` (over the bounds) or ``refused``
+    (another S3 error). The message never holds the keys."""

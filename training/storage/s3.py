@@ -5,18 +5,23 @@ After healthchecks' ``hc/lib/s3.py``: :class:`MinioStore` builds its client lazi
 turns every SDK, HTTP and OS error into one exception of ours, :class:`StoreError`
 (:class:`StoreUnavailable` for a failure that may pass, :class:`ObjectNotFound` for a missing
 key).
+
+:func:`read_model_folder` reads a model folder out of someone else's bucket (a
+DeepRacer-for-Cloud prefix, for an import) with keys that are used once and never kept.
 """
 
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any
 
 from training.storage.base import (
     DEFAULT_BUCKET,
     OCTET_STREAM,
+    BucketAccess,
+    BucketError,
     ObjectNotFound,
     ObjectStore,
     StoreError,
@@ -192,3 +197,128 @@ _TRANSIENT_S3_CODES = frozenset(
     {"InternalError", "ServiceUnavailable", "SlowDown", "RequestTimeout", "RequestTimeTooSkewed",
      "XMinioServerNotInitialized", "XMinioStorageFull"}
 )  # fmt: skip
+
+
+# ------------------------------------------------------------------------- someone's bucket
+FileReader = Callable[[Iterable[str]], dict[str, bytes]]
+FileChooser = Callable[[Mapping[str, int], FileReader], Iterable[str]]
+"""``choose(sizes, read)``: which files of a folder to fetch, from their sizes (relative path →
+bytes) and, when it needs them, the content of a few small ones (``read(paths)``)."""
+
+#: The folders of a model prefix listed (never recursively): its top, ``model/``, ``ip/``. A
+#: DeepRacer-for-Cloud prefix also holds logs (``training-simtrace/``, ``metrics/``...), never
+#: listed nor read.
+MODEL_FOLDERS = ("", "model/", "ip/")
+_DENIED = {
+    "InvalidAccessKeyId": "access_key",
+    "SignatureDoesNotMatch": "secret_key",
+    "AccessDenied": "denied",
+    "AllAccessDisabled": "denied",
+    "AccountProblem": "denied",
+}
+_NO_BUCKET = ("NoSuchBucket", "InvalidBucketName")
+
+
+def read_model_folder(
+    access: BucketAccess,
+    choose: FileChooser,
+    *,
+    max_files: int,
+    max_bytes: int,
+    timeout_s: float = 10.0,
+) -> dict[str, bytes]:
+    """The files of the model folder ``access`` names that ``choose`` wants, relative path →
+    bytes. Only :data:`MODEL_FOLDERS` are listed, each up to ``max_files`` objects; the files
+    fetched may hold ``max_bytes`` in all. The client is built here and dropped: one connection
+    try and one retry, ``timeout_s`` to connect (three times that per read). Raises
+    :class:`BucketError` (its ``reason`` says which failure), never with the keys in it."""
+    if access.prefix:
+        try:
+            validate_key(access.prefix)
+        except StoreError as exc:
+            raise BucketError(f"not a folder name: {exc}", reason="prefix") from None
+    base = f"{access.prefix}/" if access.prefix else ""
+    sizes: dict[str, int] = {}
+    with _bucket_errors(access):
+        client = _foreign_client(access, timeout_s)
+        for folder in MODEL_FOLDERS:
+            listing = client.list_objects(access.bucket, prefix=base + folder or None)
+            for listed, obj in enumerate(listing, start=1):
+                if listed > max_files:
+                    raise BucketError(f"{access.url}/{folder} holds more than {max_files} files",
+                                      reason="too_big")  # fmt: skip
+                if not obj.is_dir:
+                    sizes[obj.object_name[len(base) :]] = int(obj.size or 0)
+    fetched: dict[str, bytes] = {}
+
+    def read(names: Iterable[str]) -> dict[str, bytes]:
+        wanted = [n for n in dict.fromkeys(names) if n in sizes]
+        total = sum(sizes[n] for n in {*fetched, *wanted})
+        if total > max_bytes:
+            size = f"{max_bytes / 2**20:.0f} MB"
+            raise BucketError(f"the model at {access.url} is larger than {size}", reason="too_big")
+        for name in wanted:
+            if name not in fetched:
+                with _bucket_errors(access):
+                    fetched[name] = _read_object(client, access, base + name, sizes[name])
+        return {n: fetched[n] for n in wanted}
+
+    return read(choose(sizes, read))
+
+
+def _foreign_client(access: BucketAccess, timeout_s: float) -> Any:
+    import urllib3
+    from minio import Minio
+
+    endpoint, secure = access.endpoint.strip(), access.secure
+    for scheme, is_secure in (("http://", False), ("https://", True)):
+        if endpoint.lower().startswith(scheme):
+            endpoint, secure = endpoint[len(scheme) :], is_secure
+    endpoint = endpoint.rstrip("/")
+    if not endpoint or "/" in endpoint or any(c.isspace() for c in endpoint):
+        raise BucketError(f"the endpoint must be host:port, not {access.endpoint!r}",
+                          reason="endpoint")  # fmt: skip
+    http = urllib3.PoolManager(
+        timeout=urllib3.Timeout(connect=timeout_s, read=3 * timeout_s),
+        retries=urllib3.Retry(total=1, backoff_factor=0.2, status_forcelist=(502, 503, 504)),
+    )
+    return Minio(endpoint, access_key=access.access_key, secret_key=access.secret_key,
+                 secure=secure, region=access.region or None, http_client=http)  # fmt: skip
+
+
+def _read_object(client: Any, access: BucketAccess, key: str, size: int) -> bytes:
+    response = client.get_object(access.bucket, key)
+    try:
+        data = response.read(size + 1)
+    finally:
+        response.close()
+        response.release_conn()
+    if len(data) > size:  # it grew since it was listed
+        raise BucketError(f"{key} changed while it was read", reason="too_big")
+    return data
+
+
+@contextmanager
+def _bucket_errors(access: BucketAccess) -> Iterator[None]:
+    """Every SDK, HTTP and OS error as a :class:`BucketError`, raised ``from None``: the SDK's
+    frames and messages stay out of tracebacks (the keys are in its client's state)."""
+    from minio.error import InvalidResponseError, MinioException, S3Error, ServerError
+    from urllib3.exceptions import HTTPError
+
+    where = f"{'https' if access.secure else 'http'}://{access.endpoint}"
+    try:
+        yield
+    except StoreError:
+        raise
+    except S3Error as exc:
+        reason = _DENIED.get(exc.code, "bucket" if exc.code in _NO_BUCKET else "refused")
+        message = f"{access.url}: {exc.code}: {exc.message}"
+        raise BucketError(message, action="read", key=access.prefix, reason=reason) from None
+    except (InvalidResponseError, ServerError) as exc:  # an answer, but not S3's
+        raise BucketError(f"{where} does not answer as an S3 server ({exc})",
+                          reason="unreachable") from None  # fmt: skip
+    except (MinioException, HTTPError, OSError) as exc:
+        raise BucketError(f"cannot reach {where}: {type(exc).__name__}",
+                          reason="unreachable") from None  # fmt: skip
+    except ValueError as exc:  # the SDK's checks of the endpoint, bucket and region
+        raise BucketError(f"{access.url} at {where}: {exc}", reason="endpoint") from None
