@@ -138,8 +138,10 @@ def _imported_environment(params: dict[str, str]) -> tuple[str, str, int | None,
             if world
             else f"the archive does not name its track; it uses {track_id}"
         )
-    direction = params.get("RACECRAFT_DIRECTION") or (
-        "cw" if params.get("REVERSE_DIR", "").lower() == "true" else "native"
+    direction = (
+        params.get("RACECRAFT_DIRECTION")
+        or _droa_direction(params.get("TRACK_DIRECTION_CLOCKWISE", ""))
+        or ("cw" if params.get("REVERSE_DIR", "").lower() == "true" else "native")
     )
     if direction not in ("native", "ccw", "cw"):
         direction = "native"
@@ -152,6 +154,12 @@ def _imported_environment(params: dict[str, str]) -> tuple[str, str, int | None,
         int(minutes) if minutes.isdigit() and 1 <= int(minutes) <= 1440 else 10,
         note,
     )
+
+
+def _droa_direction(clockwise: str) -> str:
+    """DeepRacer-on-AWS's ``TRACK_DIRECTION_CLOCKWISE`` as a direction ("" when absent)."""
+    value = clockwise.lower()
+    return "cw" if value == "true" else "ccw" if value == "false" else ""
 
 
 def _imported_extra_tracks(params: dict[str, str], track_id: str, direction: str) -> list:
