@@ -109,7 +109,10 @@ def bracket_race_finished(*, race_id: int) -> BracketMatch | None:
             winner, note = _race_winner(match, race)
             _decide(event, match, winner, note)
         elif race.status in (JobStatus.FAILED, JobStatus.CANCELED):
-            if match.attempts < MAX_RACE_ATTEMPTS:
+            if match.attempts < MAX_RACE_ATTEMPTS and event.bracket_on_race_day:
+                match.race = None  # back in the race-day queue (_advance)
+                match.save(update_fields=["race"])
+            elif match.attempts < MAX_RACE_ATTEMPTS:
                 _launch(event, match)
             else:
                 _decide(event, match, match.top_id, f"the race could not be run ({race.error}); "
@@ -164,7 +167,9 @@ def _advance(event: Event) -> None:
                 break
             if match.race_id is None:
                 if event.bracket_on_race_day:
-                    if not RaceDaySlot.objects.filter(match=match).exists():
+                    queued = RaceDaySlot.objects.filter(match=match, status__in=(
+                        RaceDaySlot.Status.WAITING, RaceDaySlot.Status.RUNNING))  # fmt: skip
+                    if not queued.exists():
                         _queue_on_race_day(event, match)
                 else:
                     _launch(event, match)
@@ -239,3 +244,21 @@ def entry_race(
         )  # fmt: skip
     except ServiceError as exc:
         raise LeagueError(exc.message) from None
+
+
+def races_reconcile() -> int:
+    """A safety net for a missed ``race_finished`` (a worker cut off between the race's end
+    and the league's bookkeeping): every race-day turn and bracket match whose race has ended
+    is recorded now. Idempotent; returns how many were recorded."""
+    from leaderboard.raceday import race_day_race_finished  # raceday imports this module
+
+    recorded = 0
+    ended = (JobStatus.COMPLETED, JobStatus.FAILED, JobStatus.CANCELED)
+    for race_id in list(RaceDaySlot.objects.filter(status=RaceDaySlot.Status.RUNNING,
+                                                   race__status__in=ended)
+                        .values_list("race_id", flat=True)):  # fmt: skip
+        recorded += race_day_race_finished(race_id=race_id) is not None
+    for race_id in list(BracketMatch.objects.filter(winner__isnull=True, race__status__in=ended)
+                        .values_list("race_id", flat=True)):  # fmt: skip
+        recorded += bracket_race_finished(race_id=race_id) is not None
+    return recorded

@@ -92,7 +92,12 @@ def race_day_launch(*, event: Event, user) -> RaceDaySlot:
             raise LeagueError("the race day is paused; resume it to launch the next turn")
         if RaceDaySlot.objects.filter(event=event, status=RaceDaySlot.Status.RUNNING).exists():
             raise LeagueError("a race is on track; wait for it to finish")
-        slot = RaceDaySlot.objects.filter(event=event, status=RaceDaySlot.Status.WAITING).first()
+        waiting = RaceDaySlot.objects.filter(event=event, status=RaceDaySlot.Status.WAITING)
+        slot = waiting.select_related("match").first()
+        while slot is not None and slot.match_id and slot.match.winner_id is not None:
+            # A match decided while it waited (its opponent withdrew): nothing to race.
+            RaceDaySlot.objects.filter(pk=slot.pk).update(status=RaceDaySlot.Status.DONE)
+            slot = waiting.select_related("match").first()
         if slot is None:
             raise LeagueError("the queue is empty")
         group = broadcast_group(event.pk)

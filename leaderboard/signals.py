@@ -38,12 +38,13 @@ def evaluation_done(sender, evaluation_id: int, **kwargs) -> None:
 
 @receiver(race_finished, sender=RaceJob, dispatch_uid="league-race-finished")
 def race_done(sender, race_id: int, **kwargs) -> None:
-    """A bracket's match or a race day's turn ended: the bracket goes on, the queue moves."""
-    try:
-        bracket_race_finished(race_id=race_id)
-    except Exception:  # noqa: BLE001 - never break the job's bookkeeping; see bracket_reconcile
-        log.exception("could not record the bracket race %s", race_id)
+    """A race day's turn or a bracket's match ended: the queue moves (first, so that a match
+    whose race failed can join it again), then the bracket goes on."""
     try:
         race_day_race_finished(race_id=race_id)
-    except Exception:  # noqa: BLE001
+    except Exception:  # noqa: BLE001 - never break the job's bookkeeping
         log.exception("could not record the race-day race %s", race_id)
+    try:
+        bracket_race_finished(race_id=race_id)
+    except Exception:  # noqa: BLE001
+        log.exception("could not record the bracket race %s", race_id)

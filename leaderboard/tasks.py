@@ -2,14 +2,15 @@
 
 The beat schedule (console/settings.py, CELERY_BEAT_SCHEDULE) runs ``promote_divisions`` daily
 just after midnight UTC for the month that ended (idempotent, so daily runs are harmless and a
-missed night is caught up), and ``reconcile_submissions`` every minute.
+missed night is caught up), and ``reconcile_submissions`` every minute (finished submissions,
+bracket races and race-day turns whose signal was missed).
 """
 
 from __future__ import annotations
 
 from celery import shared_task
 
-from leaderboard import divisions, services
+from leaderboard import divisions, headtohead, services
 
 
 @shared_task(name="leaderboard.tasks.promote_divisions")
@@ -25,4 +26,5 @@ def promote_divisions(month: str | None = None) -> dict:
 
 @shared_task(name="leaderboard.tasks.reconcile_submissions")
 def reconcile_submissions() -> int:
-    return services.submissions_reconcile()
+    """Results, bracket matches and race-day turns whose signal was missed."""
+    return services.submissions_reconcile() + headtohead.races_reconcile()

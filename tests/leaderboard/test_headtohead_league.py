@@ -222,3 +222,48 @@ def test_the_bracket_page_seeds_for_the_organiser_and_shows_the_rounds(client, f
     assert fragment.status_code == 200
     assert fragment.content.count(b"data-match=") == 3  # two semi-finals and the final
     assert b"Racer-0 \xc2\xb7 car-0" in fragment.content and b"Final" in fragment.content
+
+
+def test_race_day_matches_wait_in_the_queue_and_a_failed_one_joins_it_again(fran):
+    from leaderboard import raceday
+    from leaderboard.models import RaceDaySlot
+
+    event = h2h_event(fran, bracket_on_race_day=True)
+    subs = qualified(event, 3)  # seed 1 waits in the final; 2 v 3 joins the queue
+    headtohead.bracket_seed(event=event, user=fran)
+    match = BracketMatch.objects.get(event=event, round=1)
+    assert match.race_id is None and RaceJob.objects.count() == 0
+    slot = raceday.race_day_launch(event=event, user=fran)
+    assert slot.match == match and slot.race.paced
+    RaceJob.objects.filter(pk=slot.race_id).update(status=JobStatus.FAILED, error="lost")
+    raceday.race_day_race_finished(race_id=slot.race_id)  # the order of the league's signal
+    headtohead.bracket_race_finished(race_id=slot.race_id)
+    again = RaceDaySlot.objects.get(match=match, status=RaceDaySlot.Status.WAITING)
+    assert again.pk != slot.pk
+    # While it waits, seed 3 withdraws: the match is decided and the queue skips it.
+    headtohead.bracket_withdraw(event=event, user=fran, submission=subs[2])
+    match.refresh_from_db()
+    assert match.winner_id == subs[1].pk
+    final = raceday.race_day_launch(event=event, user=fran)
+    assert final.match.round == 2
+    again.refresh_from_db()
+    assert again.status == RaceDaySlot.Status.DONE and again.race_id is None
+
+
+def test_a_missed_race_signal_is_caught_up_by_the_reconcile_task(fran):
+    from leaderboard.tasks import reconcile_submissions
+
+    event = h2h_event(fran)
+    subs = qualified(event, 2)
+    headtohead.bracket_seed(event=event, user=fran)
+    match = BracketMatch.objects.get(event=event)
+    race = match.race
+    RaceJob.objects.filter(pk=race.pk).update(  # ended, but nobody heard of it
+        status=JobStatus.COMPLETED,
+        results={"winner": race.entries[1]["model"], "cars": [
+            {"model": race.entries[1]["model"], "finished": True}]},
+    )  # fmt: skip
+    assert reconcile_submissions() == 1
+    match.refresh_from_db()
+    assert match.winner_id == subs[1].pk
+    assert reconcile_submissions() == 0
