@@ -45,6 +45,7 @@ def test_tasks_route_to_their_queues() -> None:
         "training.tasks.simulate_episodes": "simulation",
         "training.tasks.rollout_worker": "simulation",
         "leaderboard.tasks.evaluate_submission": "evaluation",
+        "training.tasks.evaluate_race": "evaluation",  # head-to-head races
         "console.tasks.ping": "default",
         # What a page waits for has its own queue: never behind the reaper, nor it behind them.
         "training.tasks.validate_reward": "interactive",
