@@ -193,7 +193,8 @@ class HeadToHeadRace:
                 continue
             try:
                 decoded[car.index] = car.actions.decode(actions[car.index])
-                chosen[car.index] = self._trace_action(car, actions[car.index])
+                chosen[car.index] = self._trace_action(car, actions[car.index],
+                                                       decoded[car.index])  # fmt: skip
             except ActionSpaceError as exc:
                 self.retire(car.index, f"its policy chose an impossible action: {exc}")
         driving = [car for car in self.cars if car.index in decoded]
@@ -276,12 +277,13 @@ class HeadToHeadRace:
         car.hint, car.s = loc.segment, loc.s
 
     @staticmethod
-    def _trace_action(car: RaceCar, action: object) -> int | tuple[float, float]:
-        """The sim-trace's action column: the index, or the continuous pair as given."""
+    def _trace_action(
+        car: RaceCar, action: object, decoded: tuple[float, float]
+    ) -> int | tuple[float, float]:
+        """The sim-trace's action column: the index, or the continuous pair driven."""
         if car.actions.kind == "discrete":
             return int(np.asarray(action).reshape(-1)[0])
-        steering, speed = car.actions.decode(action)
-        return (round(steering, 4), round(speed, 4))
+        return (round(decoded[0], 4), round(decoded[1], 4))
 
     def _drive(
         self, car: RaceCar, steering: float, speed: float, action: int | tuple[float, float]

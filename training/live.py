@@ -83,19 +83,24 @@ def send(group: str, message: dict) -> bool:
     return True
 
 
-class FramePublisher:
-    """A background sender of video frames: keeps only the newest frame when it falls behind."""
+class _NewestSender:
+    """What the frame senders share: a background thread fed through a two-slot queue that
+    keeps only the newest item when the thread lags, and a once-a-second look at whether
+    anyone watches ``group``. Subclasses send in ``_run`` until ``_stop`` is set."""
 
-    def __init__(self, group: str) -> None:
+    def __init__(self, group: str, thread_name: str) -> None:
         self.group = group
         self._queue: queue.Queue = queue.Queue(maxsize=2)
-        self._thread = threading.Thread(target=self._run, name=f"frames-{group}", daemon=True)
         self._stop = threading.Event()
         self._watched = False
         self._checked = 0.0
         self.encoded = 0  # frames the worker encoded and handed over
-        self.sent = 0  # frames sent to the group (each once, for every viewer)
+        self.sent = 0  # frames sent (each once, for every viewer)
+        self._thread = threading.Thread(target=self._run, name=thread_name, daemon=True)
         self._thread.start()
+
+    def _run(self) -> None:
+        raise NotImplementedError
 
     def watched(self) -> bool:
         now = time.monotonic()
@@ -104,8 +109,33 @@ class FramePublisher:
             self._watched = is_watched(self.group)
         return self._watched
 
-    def publish(self, frame: dict) -> None:
+    def _put_newest(self, item: object) -> None:
         self.encoded += 1
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            try:
+                self._queue.get_nowait()  # drop the stale frame
+            except queue.Empty:
+                pass
+            try:
+                self._queue.put_nowait(item)
+            except queue.Full:
+                pass
+
+    def _join(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
+
+
+class FramePublisher(_NewestSender):
+    """A background sender of video frames to a job's Channels group: keeps only the newest
+    frame when it falls behind."""
+
+    def __init__(self, group: str) -> None:
+        super().__init__(group, f"frames-{group}")
+
+    def publish(self, frame: dict) -> None:
         message = {
             "type": "job.frame",
             "camera": base64.b64encode(bytes(frame["camera"])).decode(),
@@ -117,23 +147,7 @@ class FramePublisher:
         for key in ("phase", "iteration", "version", "lap"):
             if frame.get(key) is not None:
                 message[key] = frame[key]
-        self.offer(message, counted=False)
-
-    def offer(self, message: dict, *, counted: bool = True) -> None:
-        """Queue any message for the group, dropping the stale one when the sender lags."""
-        if counted:
-            self.encoded += 1
-        try:
-            self._queue.put_nowait(message)
-        except queue.Full:
-            try:
-                self._queue.get_nowait()  # drop the stale frame
-            except queue.Empty:
-                pass
-            try:
-                self._queue.put_nowait(message)
-            except queue.Full:
-                pass
+        self._put_newest(message)
 
     def _run(self) -> None:
         # One event loop for the thread's life: async_to_sync for each frame would start a loop,
@@ -162,8 +176,7 @@ class FramePublisher:
         return True
 
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2)
+        self._join()
         if not self.encoded:
             return
         try:
@@ -179,46 +192,20 @@ def broadcast_channel(group: str) -> str:
     return f"{settings.REDIS_PREFIX or ''}racecraft:broadcast:{group}"
 
 
-class BroadcastPublisher:
+class BroadcastPublisher(_NewestSender):
     """Frames for a crowd: each frame PUBLISHed once to the group's Redis pub/sub channel
     (:func:`broadcast_channel`), where every web process holds one subscription and writes the
     frame to its own viewers (``leaderboard.broadcast.FrameHub``). Unlike a Channels group,
     which keeps a copy of every message for every viewer in Redis, a frame crosses Redis once
-    per web process however many watch. A background thread sends, keeping only the newest
-    frame when it lags, so the race never waits on Redis."""
+    per web process however many watch. The race never waits on Redis: a background thread
+    sends, keeping only the newest frame when it lags."""
 
     def __init__(self, group: str) -> None:
-        self.group = group
         self.channel = broadcast_channel(group)
-        self._queue: queue.Queue = queue.Queue(maxsize=2)
-        self._stop = threading.Event()
-        self._checked = 0.0
-        self._watched = False
-        self.encoded = 0
-        self.sent = 0
-        self._thread = threading.Thread(target=self._run, name=f"broadcast-{group}", daemon=True)
-        self._thread.start()
-
-    def watched(self) -> bool:
-        now = time.monotonic()
-        if now - self._checked > 1.0:
-            self._checked = now
-            self._watched = is_watched(self.group)
-        return self._watched
+        super().__init__(group, f"broadcast-{group}")
 
     def offer(self, payload: bytes) -> None:
-        self.encoded += 1
-        try:
-            self._queue.put_nowait(payload)
-        except queue.Full:
-            try:
-                self._queue.get_nowait()  # drop the stale frame
-            except queue.Empty:
-                pass
-            try:
-                self._queue.put_nowait(payload)
-            except queue.Full:
-                pass
+        self._put_newest(payload)
 
     def _run(self) -> None:
         client = _redis()
@@ -234,5 +221,4 @@ class BroadcastPublisher:
                 log.warning("could not publish a frame to %s", self.channel, exc_info=True)
 
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2)
+        self._join()

@@ -191,9 +191,8 @@ def _create(*, entries: list[dict], track_id: str, direction: str, race: RaceCon
     return job
 
 
-def race_plan_of(job: RaceJob, *, record_video: bool = True) -> RacePlan:
-    """The plan a stored race job runs (models missing since are left to the runner)."""
-    models = {m.pk: m for m in RacingModel.objects.filter(pk__in=job.model_ids)}
+def race_conditions_of(job: RaceJob) -> tuple[RaceConfig, RaceSettings]:
+    """The bots and settings a stored race job runs with (its cars come from its entries)."""
     race = RaceConfig()
     if job.bots:
         race = RaceConfig.from_dict(race_settings(
@@ -201,7 +200,6 @@ def race_plan_of(job: RaceJob, *, record_video: bool = True) -> RacePlan:
     settings = RaceSettings(
         laps=job.laps, off_track_penalty_s=job.off_track_penalty_s,
         crash_penalty_s=job.crash_penalty_s, time_limit_s=job.time_limit_s, seed=job.seed,
-        round=job.round_number, record_video=record_video,
+        round=job.round_number,
     )  # fmt: skip
-    ordered = tuple(models[i] for i in job.model_ids if i in models)
-    return RacePlan(ordered, job.track_id, job.direction, race, settings)
+    return race, settings

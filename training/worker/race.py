@@ -28,7 +28,7 @@ from training.rl.evaluation import sb3_policy
 from training.rl.metadata import MetadataError, ModelMetadata
 from training.rl.race import RaceEntry, RaceReport, RaceSettings, run_race
 from training.services import model_metadata, track_catalog, tracks_sync_for
-from training.services.races import race_plan_of
+from training.services.races import race_conditions_of
 from training.storage import StoreError
 from training.store import get_store, keys_for
 from training.worker.common import Heartbeat, StopFlag, csv_text, fail_with
@@ -37,13 +37,11 @@ from training.worker.racelive import RaceBroadcast
 CLEAR_ERRORS = (StoreError,)
 
 
-def race_entry(model: RacingModel, *, checkpoint: str = "", metadata: dict | None = None
-               ) -> RaceEntry:  # fmt: skip
-    """The model's car: its sensors, action space and policy (``unavailable`` when its
-    weights cannot be had). ``checkpoint`` and ``metadata``: a frozen league entry."""
-    meta = services.model_metadata(model) if metadata is None else None
-    return _entry(model.pk, model.name, meta, checkpoint or keys_for(model.pk).best,
-                  metadata=metadata, trained=model.has_checkpoint or bool(checkpoint))  # fmt: skip
+def race_entry(model: RacingModel) -> RaceEntry:
+    """The model's car: its sensors, action space and best checkpoint's policy
+    (``unavailable`` when its weights cannot be had)."""
+    return _entry(model.pk, model.name, services.model_metadata(model),
+                  keys_for(model.pk).best, trained=model.has_checkpoint)  # fmt: skip
 
 
 def _entry(key: int, name: str, meta: ModelMetadata | None, checkpoint: str, *,
@@ -125,10 +123,10 @@ def run_race_job(race_id: int, worker: str = "", *, paced: bool = False) -> str:
     try:
         entries = job_entries(job)
         track = race_track(job.track_id, job.direction)
-        plan = race_plan_of(job)
+        race, settings = race_conditions_of(job)
         services.job_begin(job=job)
         with Heartbeat(RaceJob, job.pk):
-            report = run_race(entries, track, plan.settings, race=plan.race, title=job.title,
+            report = run_race(entries, track, settings, race=race, title=job.title,
                               should_stop=StopFlag(job), on_frame=broadcast.frame)  # fmt: skip
         stamp = evaluation_stamp(job.started_at or timezone.now())
         metadata = {entry.key: entry.metadata for entry in entries}

@@ -10,7 +10,7 @@ viewers (no per-viewer encoding, no base64) and drops a frame that is already st
 lagging process falls behind by frames, never by seconds.
 
 Frames are encoded only while someone watches the race (or a race day paces it); a background
-sender drops a stale frame rather than slow the race (:class:`training.live.FramePublisher`).
+sender drops a stale frame rather than slow the race (:class:`training.live.BroadcastPublisher`).
 """
 
 from __future__ import annotations
