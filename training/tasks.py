@@ -34,12 +34,16 @@ _JOB_TASK = {"bind": True, "acks_late": True, "reject_on_worker_lost": True}
 
 @shared_task(name=dispatch.TRAIN_MODEL, **_JOB_TASK)
 def train_model(self, job_id: int) -> str:
-    return run_training_job(job_id, worker=self.request.hostname or "")
+    return run_training_job(
+        job_id, worker=self.request.hostname or "", task_id=self.request.id or ""
+    )
 
 
 @shared_task(name=dispatch.EVALUATE_MODEL, **_JOB_TASK)
 def evaluate_model(self, evaluation_id: int) -> str:
-    return run_evaluation_job(evaluation_id, worker=self.request.hostname or "")
+    return run_evaluation_job(
+        evaluation_id, worker=self.request.hostname or "", task_id=self.request.id or ""
+    )
 
 
 @shared_task(name=SIMULATE_EPISODES, acks_late=False)

@@ -19,6 +19,7 @@ from training.models import (
     RacingModel,
     TrainingJob,
 )
+from training.services.job_queue import FAIR_KINDS, claim_fairest, token_holder
 from training.services.job_states import (
     Job,
     gave_up_error,
@@ -66,38 +67,61 @@ def _trained_seconds(job: Job) -> float:
     return float(last or 0.0)
 
 
-def job_claim(*, job_model: type[Job], job_id: int, worker: str) -> Job | None:
-    """QUEUED → INITIALIZING for the worker that runs it; None when the job was canceled or
-    another worker (a duplicated or retried task) took it first.
+def job_claim(*, job_model: type[Job], job_id: int, worker: str, task_id: str = "") -> Job | None:
+    """Claim a queued job for the worker slot that received the task ``task_id`` (sent for
+    ``job_id``): QUEUED → INITIALIZING. Training and evaluation tasks are interchangeable
+    tokens: the slot runs the fairest queued job of the kind (:mod:`~.job_queue`), which may
+    be another user's; a caller without a task (the command line) claims ``job_id`` itself.
+    None when no job is left to run (canceled, or taken by another slot).
 
     A task given back because its worker process died (``task_reject_on_worker_lost``) finds
     its job still running under that dead process: the claim then takes it over at once
     (compare-and-set on the dead worker's name), and a training job resumes from its last
     checkpoint. ``worker`` is the Celery node name; the job records ``<node>#<pid>``."""
-    now = timezone.now()
-    job = job_rows(job_model).get(pk=job_id)
+    fair = job_model in FAIR_KINDS and bool(task_id)  # no task: a caller runs its own job
+    if fair:
+        job_id = token_holder(job_model, job_id, task_id)
+    job = job_rows(job_model).filter(pk=job_id).first()
     me = worker_id(worker)
-    # The page's clock counts training time already spent before a restart.
-    started = now - timezone.timedelta(seconds=_trained_seconds(job))
-    fields = dict(started_at=started, heartbeat_at=now, worker=me, attempts=F("attempts") + 1)
-    taken = transition(job, allowed=(JobStatus.QUEUED,), to=JobStatus.INITIALIZING, **fields)
-    if not taken and job.status in RUNNING_JOB_STATUSES and runner_is_dead(job.worker, worker):
+
+    def fields_for(job: Job) -> dict:
+        now = timezone.now()
+        # The page's clock counts training time already spent before a restart.
+        started = now - timezone.timedelta(seconds=_trained_seconds(job))
+        return dict(started_at=started, heartbeat_at=now, worker=me, attempts=F("attempts") + 1)
+
+    def take(pk: int) -> Job | None:
+        queued = job_rows(job_model).filter(pk=pk, status=JobStatus.QUEUED).first()
+        if queued is None:
+            return None
+        allowed = (JobStatus.QUEUED,)
+        return queued if transition(queued, allowed=allowed, to=JobStatus.INITIALIZING,
+                                    **fields_for(queued)) else None  # fmt: skip
+
+    if (
+        job is not None
+        and job.status in RUNNING_JOB_STATUSES
+        and runner_is_dead(job.worker, worker)
+    ):
         if job.status == JobStatus.STOPPING:
             job_complete(job=job, stopped_by="user")  # its owner wanted it to stop anyway
             return None
         if job.attempts >= max_attempts():
             job_fail(job=job, error=gave_up_error(job))
             return None
-        taken = transition_where(
-            job, Q(status=job.status, worker=job.worker), to=JobStatus.INITIALIZING, **fields
-        )
-        if taken:
-            log.warning("job %s: took over from dead worker process; resuming", job.pk)
-    if not taken:
-        return None
-    if isinstance(job, TrainingJob):
-        RacingModel.objects.filter(pk=job.model_id).update(status=RacingModel.Status.TRAINING)
-    return job
+        where = Q(status=job.status, worker=job.worker)
+        if not transition_where(job, where, to=JobStatus.INITIALIZING, **fields_for(job)):
+            return None
+        log.warning("job %s: took over from dead worker process; resuming", job.pk)
+        taken = job
+    elif fair:
+        holder = job if job is not None and job.status == JobStatus.QUEUED else None
+        taken = claim_fairest(job_model, holder, task_id=task_id, take=take)
+    else:
+        taken = take(job_id) if job is not None else None
+    if taken is not None and isinstance(taken, TrainingJob):
+        RacingModel.objects.filter(pk=taken.model_id).update(status=RacingModel.Status.TRAINING)
+    return taken
 
 
 def job_resumed_from(*, job: TrainingJob, description: str) -> None:

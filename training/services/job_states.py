@@ -146,7 +146,8 @@ def enqueue_after_commit(job: Job, task_name: str) -> None:
             log.warning("could not queue job %s; the reaper sends it later", job.pk, exc_info=True)
             job.dispatch_note = BROKER_DOWN_NOTE
             return
-        type(job).objects.filter(pk=job.pk).update(task_id=task_id or "")
+        # Unless a worker already gave the job another token (fair dispatch swaps tokens).
+        type(job).objects.filter(pk=job.pk, task_id="").update(task_id=task_id or "")
 
     transaction.on_commit(go)
 

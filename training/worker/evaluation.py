@@ -26,10 +26,13 @@ CLEAR_ERRORS = (CheckpointError, StoreError)
 """Errors whose message already tells the user what went wrong."""
 
 
-def run_evaluation_job(evaluation_id: int, worker: str = "") -> str:
-    """Claim and run evaluation ``evaluation_id``; returns ``"completed"``, ``"failed"``,
+def run_evaluation_job(evaluation_id: int, worker: str = "", task_id: str = "") -> str:
+    """Claim and run the fairest queued evaluation for the task ``task_id`` sent for
+    ``evaluation_id`` (:mod:`training.services.job_queue`); returns ``"completed"``, ``"failed"``,
     ``"skipped"`` or ``"superseded"`` (as :func:`~training.worker.training.run_training_job`)."""
-    job = services.job_claim(job_model=EvaluationJob, job_id=evaluation_id, worker=worker)
+    job = services.job_claim(
+        job_model=EvaluationJob, job_id=evaluation_id, worker=worker, task_id=task_id
+    )
     if job is None:
         return "skipped"
     # One car, one observation a step: a second thread only waits, and on cores shared with

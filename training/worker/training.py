@@ -248,11 +248,12 @@ def _initial_checkpoint(
     return checkpoint, None, "started from the imported model's checkpoint"
 
 
-def run_training_job(job_id: int, worker: str = "") -> str:
-    """Claim and run training job ``job_id``; returns ``"completed"``, ``"failed"``,
+def run_training_job(job_id: int, worker: str = "", task_id: str = "") -> str:
+    """Claim and run the fairest queued training job for the task ``task_id`` sent for
+    ``job_id`` (:mod:`training.services.job_queue`); returns ``"completed"``, ``"failed"``,
     ``"skipped"`` (another worker has it, or it was canceled) or ``"superseded"`` (it ended
     meanwhile, e.g. failed by the orphan reaper; its result is not recorded twice)."""
-    job = services.job_claim(job_model=TrainingJob, job_id=job_id, worker=worker)
+    job = services.job_claim(job_model=TrainingJob, job_id=job_id, worker=worker, task_id=task_id)
     if job is None:
         return "skipped"
     model = job.model
