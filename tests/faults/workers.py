@@ -35,15 +35,15 @@ def wait_for(predicate: Callable[[], object], timeout: float, what: str,
 @contextmanager
 def celery_worker(
     log_path: Path, env: Mapping[str, str], *, queues: str = "training,default",
-    name: str | None = None, ping_app=None,
+    name: str | None = None, ping_app=None, app: str = "console",
 ) -> Iterator[subprocess.Popen]:  # fmt: skip
-    """A real ``celery worker`` (prefork, one process) on the test database."""
+    """A real ``celery worker`` (prefork, one process) of ``app`` on the test database."""
     node = name or f"faults-{uuid.uuid4().hex[:8]}@%h"
     full_env = {**os.environ, "DATABASE_URL": database_url(),
                 "DJANGO_SETTINGS_MODULE": "console.settings", **env}  # fmt: skip
     log = open(log_path, "a")  # noqa: SIM115 - closed below
     proc = subprocess.Popen(
-        [sys.executable, "-m", "celery", "-A", "console", "worker", "-Q", queues, "-c", "1",
+        [sys.executable, "-m", "celery", "-A", app, "worker", "-Q", queues, "-c", "1",
          "-n", node, "--without-gossip", "--without-mingle", "-l", "INFO"],
         cwd=ROOT, env=full_env, stdout=log, stderr=subprocess.STDOUT,
     )  # fmt: skip
