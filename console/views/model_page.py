@@ -55,6 +55,7 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
         "network_label": catalog.NETWORK_LABELS.get(model.neural_network, model.neural_network),
         "hyperparameter_rows": hyperparameter_rows(model),
         "job": job,
+        "jobs_ahead": services.jobs_ahead(job),
         "chart_points": selectors.chart_points(job) if job else [],
         "can_start": actions.can_train,
         "can_evaluate": actions.can_evaluate,

@@ -9,6 +9,7 @@ a message a user can act on. Side effects on other processes start only after th
 - :mod:`~training.services.model_files`: what a model's folder in the store says about it;
   a store failure as a user reads it.
 - :mod:`~training.services.jobs`: the one state machine of training and evaluation jobs.
+- :mod:`~training.services.job_queue`: fair dispatch, which queued job a free slot runs next.
 - :mod:`~training.services.records`: what a running job records besides its status (a
   checkpoint exists, where an evaluation's logs are).
 - :mod:`~training.services.checks`: tracks, configurations, reward functions, names, quotas.
@@ -37,6 +38,7 @@ from training.services.checks import (
     check_track,
     track_catalog,
 )
+from training.services.job_queue import jobs_ahead
 from training.services.jobs import (
     evaluation_start,
     job_begin,
@@ -101,6 +103,7 @@ __all__ = [
     "evaluation_start",
     "job_begin",
     "job_claim",
+    "jobs_ahead",
     "job_complete",
     "job_fail",
     "job_heartbeat",

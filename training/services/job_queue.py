@@ -114,3 +114,12 @@ def claim_fairest(job_model, holder, *, task_id: str, take) -> object | None:
                 )
             return job
     return None
+
+
+def jobs_ahead(job) -> int | None:
+    """How many queued jobs of its kind run before ``job`` in the fair order (None unless it
+    is queued): what its owner's page shows while it waits."""
+    if job is None or job.status != JobStatus.QUEUED or type(job) not in FAIR_KINDS:
+        return None
+    order = fair_order(type(job))
+    return order.index(job.pk) if job.pk in order else None

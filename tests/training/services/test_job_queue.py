@@ -137,3 +137,17 @@ def test_evaluations_are_fair_and_races_keep_their_order():
     claimed = services.job_claim(job_model=RaceJob, job_id=race.pk, worker="w@host",
                                  task_id="r-1")  # fmt: skip
     assert claimed.pk == race.pk
+
+
+def test_a_waiting_owner_sees_how_many_jobs_run_before_theirs(client):
+    alice, bob = _user("alice"), _user("bob")
+    a = _queue(alice, 3, at=0)
+    b = _queue(bob, 1, at=10)
+    assert [services.jobs_ahead(j) for j in a] == [0, 2, 3]
+    assert services.jobs_ahead(b[0]) == 1
+    client.force_login(bob)
+    page = client.get(f"/models/{b[0].model_id}/").content.decode()
+    assert "1 job ahead" in page
+    TrainingJob.objects.filter(pk=a[0].pk).update(status=JobStatus.IN_PROGRESS)
+    assert services.jobs_ahead(TrainingJob.objects.get(pk=a[0].pk)) is None
+    assert "next to start" in client.get(f"/models/{b[0].model_id}/").content.decode()
