@@ -3,7 +3,6 @@ sim-trace CSV, the stop flag, and where rollouts run."""
 
 from __future__ import annotations
 
-import functools
 import logging
 import threading
 import time
@@ -124,7 +123,7 @@ def rollout_backend() -> RolloutBackend:
     slots = int(settings.RACECRAFT_REMOTE_ROLLOUT_SLOTS)
     if slots > 0:
         return StreamRollouts(redis_url=settings.REDIS_URL, workers=slots,
-                              launch=functools.partial(dispatch.send, SIMULATE_EPISODES),
+                              launch=send_simulation,
                               prefix=settings.REDIS_PREFIX or "")  # fmt: skip
     if settings.RACECRAFT_SIMULATION == "streams":
         return StreamRollouts(redis_url=settings.REDIS_URL, workers=2, launch=launch_local,
@@ -132,16 +131,35 @@ def rollout_backend() -> RolloutBackend:
     return LocalRollouts()
 
 
+MACHINE_LOCAL = ("redis_url", "prefix")
+"""What a simulation message never carries: the sender's Redis address and key prefix (each
+machine uses its own ``REDIS_URL`` and ``REDIS_PREFIX``; a password stays out of the queue)."""
+
+
+def send_simulation(**kwargs) -> str:
+    """Queue a streamed simulation worker on the ``simulation`` queue (any machine): the
+    message names the tracks by id and content (``track_hashes``), never this machine's
+    folder or Redis address; :func:`simulate_here` fills in the worker's own."""
+    for key in MACHINE_LOCAL:
+        kwargs.pop(key, None)
+    for key in ("spec", "eval_spec"):
+        if isinstance(kwargs.get(key), dict):
+            kwargs[key] = {k: v for k, v in kwargs[key].items() if k != "track_dirs"}
+    return dispatch.send(SIMULATE_EPISODES, **kwargs)
+
+
 def simulate_here(**kwargs) -> str:
     """A streamed simulation worker for a trainer on another machine (the ``simulation``
-    queue's task): the imported tracks from the database into this machine's folder, and the
-    trainer's specs pointed at that folder (never at a path of the trainer's machine)."""
+    queue's task): the imported tracks from the database into this machine's folder, the
+    trainer's specs pointed at that folder, and this machine's Redis (never a path or an
+    address of the trainer's machine)."""
     here = [str(settings.RACECRAFT_TRACKS_DIR)]
     driven: list[str] = []
     for key in ("spec", "eval_spec"):
         if isinstance(kwargs.get(key), dict):
             kwargs[key] = {**kwargs[key], "track_dirs": here}
             driven += [str(track) for track, _ in EnvSpec.from_json(kwargs[key]).track_list()]
+    kwargs.update(redis_url=settings.REDIS_URL, prefix=settings.REDIS_PREFIX or "")
     tracks_sync_for(driven)
     return serve_simulation(**kwargs)
 

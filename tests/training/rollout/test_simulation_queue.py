@@ -3,7 +3,6 @@ a streamed training run through real Redis."""
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Iterator
 
 import pytest
@@ -45,12 +44,11 @@ class Two(TrainingHooks):
 
 
 def test_streamed_training_on_celery_simulation_workers(simulation_worker, redis_url, settings):
-    from training import dispatch
-    from training.worker.common import SIMULATE_EPISODES
+    from training.worker.common import send_simulation
 
-    launch = functools.partial(dispatch.send, SIMULATE_EPISODES)
+    # The console's own launch: the worker uses its own Redis settings, not the message's.
     backend = StreamRollouts(redis_url=redis_url, workers=2, prefix=settings.REDIS_PREFIX,
-                             launch=launch)  # fmt: skip
+                             launch=send_simulation)  # fmt: skip
     hooks = Two()
     summary = train(TrainingConfig(
         spec=EnvSpec(track="racecraft_oval",

@@ -122,9 +122,19 @@ def test_a_remote_simulation_worker_reads_its_own_folder(alice, web, tmp_path, s
     worker = tmp_path / "worker-tracks"
     settings.RACECRAFT_TRACKS_DIR = worker
     trainer_spec = {"track": "my_oval", "track_dirs": ["/trainer/only/var/tracks"]}
-    assert common.simulate_here(spec=trainer_spec, eval_spec=dict(trainer_spec), seed=1) == "ok"
+    sent = {}
+    monkeypatch.setattr(common.dispatch, "send", lambda name, **kwargs: sent.update(kwargs) or "t")
+    # What crosses the queue: the tracks by id and content, no folder, no Redis address.
+    common.send_simulation(spec=trainer_spec, eval_spec=dict(trainer_spec), seed=1,
+                           redis_url="redis://:pw@trainer-only:6379/0", prefix="p:")  # fmt: skip
+    assert "track_dirs" not in sent["spec"] and "track_dirs" not in sent["eval_spec"]
+    assert "redis_url" not in sent and "prefix" not in sent
+    assert common.simulate_here(**json.loads(json.dumps(sent))) == "ok"
     assert seen["spec"]["track_dirs"] == seen["eval_spec"]["track_dirs"] == [str(worker)]
     assert seen["seed"] == 1 and (worker / "my_oval.npy").is_file()
+    assert seen["redis_url"] == settings.REDIS_URL and seen["prefix"] == (
+        settings.REDIS_PREFIX or ""
+    )
 
 
 def test_training_on_a_track_no_machine_has_is_refused_before_it_is_queued(alice, web):

@@ -4,13 +4,11 @@ of other machines whenever ``RACECRAFT_REMOTE_ROLLOUT_SLOTS`` > 0."""
 
 from __future__ import annotations
 
-import functools
-
 import pytest
 
 from training.rl.simulation import launch_local
 from training.rollout.backends import LocalRollouts, StreamRollouts
-from training.worker.common import SIMULATE_EPISODES, rollout_backend
+from training.worker.common import rollout_backend, send_simulation
 
 
 @pytest.mark.parametrize(
@@ -30,5 +28,4 @@ def test_the_settings_pick_the_backend(settings, simulation, slots, expected):
     if expected == "here":
         assert backend.launch is launch_local and backend.workers == 2
     else:
-        assert isinstance(backend.launch, functools.partial) and backend.workers == slots
-        assert backend.launch.args == (SIMULATE_EPISODES,)
+        assert backend.launch is send_simulation and backend.workers == slots
