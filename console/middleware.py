@@ -6,11 +6,15 @@ the next request starts afresh (Django drops a broken database connection at its
 from __future__ import annotations
 
 import logging
+import time
 
-from django.db import InterfaceError, OperationalError
+from django.conf import settings
+from django.db import DatabaseError, InterfaceError, OperationalError
 from django.http import HttpRequest, HttpResponse, JsonResponse
 from django.utils.html import escape
 
+from console import tracks
+from training import services
 from training.errors import ObjectNotFound, StoreError
 
 log = logging.getLogger(__name__)
@@ -53,3 +57,28 @@ class UnavailableMiddleware:
             return None
         log.warning("%s %s: %s unavailable: %s", request.method, request.path, what, exception)
         return unavailable_response(request, what)
+
+
+class TrackSyncMiddleware:
+    """The web's tracks folder follows the database: imported tracks are recorded there
+    (:class:`~training.models.TrackFile`), and at most once every ``RACECRAFT_TRACKS_SYNC_S``
+    seconds a web process writes those its folder lacks or holds in another version
+    (one small query when nothing changed). A second web host, a rebuilt one, or a track
+    imported on another machine is listed, previewed and accepted like the web's own uploads;
+    previews of a track written anew are drawn again. 0 turns it off."""
+
+    def __init__(self, get_response) -> None:
+        self.get_response = get_response
+        self.next_at = 0.0
+
+    def __call__(self, request: HttpRequest) -> HttpResponse:
+        every = float(getattr(settings, "RACECRAFT_TRACKS_SYNC_S", 0))
+        now = time.monotonic()
+        if every > 0 and now >= self.next_at:
+            self.next_at = now + every
+            try:
+                if services.tracks_sync():
+                    tracks.preview_cache_clear()
+            except (DatabaseError, OSError):
+                log.warning("could not bring the tracks folder up to date", exc_info=True)
+        return self.get_response(request)

@@ -105,6 +105,8 @@ MIDDLEWARE = [
     "csp.middleware.CSPMiddleware",
     # An unreachable object store or database: a 503 "try again", never a 500.
     "console.middleware.UnavailableMiddleware",
+    # Imported tracks from the database into this host's folder (a web host shares no disk).
+    "console.middleware.TrackSyncMiddleware",
 ]
 
 # ---- HTTPS and browser protections. Production (DEBUG=0) runs behind a TLS-terminating proxy
@@ -319,6 +321,9 @@ RACECRAFT_JOB_MAX_ATTEMPTS = envint("RACECRAFT_JOB_MAX_ATTEMPTS", 3, minimum=1)
 
 # Track files a user imported (e.g. DeepRacer's .npy files, which we never commit).
 RACECRAFT_TRACKS_DIR = Path(envstr("RACECRAFT_TRACKS_DIR", str(VAR_DIR / "tracks")))
+# A web process brings that folder up to date from the database at most this often (seconds;
+# 0: never): imported tracks are recorded in the database, and a web host shares no disk.
+RACECRAFT_TRACKS_SYNC_S = envint("RACECRAFT_TRACKS_SYNC_S", 30, minimum=0)
 # Reward code runs only where every isolation protection is in force (training/sandbox/
 # requirements.py); 1 accepts weaker isolation and shows a warning on every page.
 RACECRAFT_ALLOW_WEAK_SANDBOX = envbool("RACECRAFT_ALLOW_WEAK_SANDBOX", False)

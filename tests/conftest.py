@@ -109,6 +109,8 @@ def _redis_settings(redis_url: str) -> Iterator[None]:
         "REDIS_URL": redis_url,
         "REDIS_PREFIX": REDIS_PREFIX,
         "CHANNEL_LAYERS": channel_layers_setting(redis_url, REDIS_PREFIX),
+        # The web's sync of imported tracks writes folders: only the tests of it turn it on.
+        "RACECRAFT_TRACKS_SYNC_S": 0,
         **celery,
     }
     saved = {name: getattr(settings, name) for name in overrides}

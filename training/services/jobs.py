@@ -169,6 +169,7 @@ def evaluation_start(
     track_id = track_id or model.track_id
     direction = direction or model.direction
     check_track(track_id, direction)
+    tracks_check_recorded([track_id])  # every worker can have it, or it is refused here
     if race_type is None:
         race_type, race_config = model.race_type, model.race_config
     race = race_settings(race_type, race_config)

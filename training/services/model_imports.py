@@ -21,6 +21,7 @@ from training.services.checks import (
     track_catalog,
 )
 from training.services.models import _all_or_nothing, model_create
+from training.services.trackfiles import tracks_sync
 from training.store import get_store, keys_for
 
 
@@ -32,6 +33,7 @@ def model_import(*, owner, name: str, upload, description: str = "") -> RacingMo
     when it has one; ``model.import_note`` says what could not be kept (an unknown track)."""
     check_name(owner, name)
     check_model_quota(owner)
+    tracks_sync()  # the archive's WORLD_NAME may be a track imported on another machine
     imported, source_note = _read_model_upload(upload)
     meta = imported.metadata
     params = read_training_params(imported.extra_files)

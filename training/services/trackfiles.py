@@ -18,6 +18,7 @@ from pathlib import Path
 from django.conf import settings
 from django.db import transaction
 
+from racing.track import TrackError
 from racing.tracks import BUILTIN_DIR, TRACK_ID_RE
 from training.errors import ServiceError
 from training.models import TrackFile
@@ -103,15 +104,25 @@ def track_hashes(track_ids: list[str]) -> tuple[tuple[str, str], ...]:
 
 def tracks_check_recorded(track_ids: list[str]) -> None:
     """Refuse a job on a track no machine can have (gone from the catalogue since). A file put
-    into this machine's folder by hand, never recorded, still counts here."""
-    local = None
+    into this machine's folder by hand, never recorded, is recorded now (read and checked as
+    the catalogue reads it), so that a worker that shares no disk with this one gets it too."""
+    catalog = None
     for track_id in track_ids:
         if track_recorded(track_id):
             continue
-        if local is None:
-            local = set(track_catalog().ids())
-        if track_id not in local:
+        if catalog is None:
+            catalog = track_catalog()
+        if track_id not in catalog.ids():
             raise ServiceError(
                 f"the track {track_id!r} is no longer in the catalogue: import it again, or "
                 "clone the model onto another track"
             )
+        folder = Path(settings.RACECRAFT_TRACKS_DIR)
+        try:
+            catalog.load(track_id)  # the file is a track the simulator can drive
+            data = (folder / f"{track_id}.npy").read_bytes()
+        except (OSError, TrackError) as exc:
+            raise ServiceError(f"the track {track_id!r} cannot be read here: {exc}") from None
+        trackfile_save(track_id=track_id, name=catalog.info(track_id).name, data=data)
+        (folder / f"{track_id}.sha256").write_text(hashlib.sha256(data).hexdigest())
+        log.info("track %s: a file put here by hand is now recorded for every machine", track_id)

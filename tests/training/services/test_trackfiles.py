@@ -22,6 +22,7 @@ from training import services
 from training.errors import ServiceError
 from training.models import TrackFile
 from training.rollout.envs import EnvSpec
+from training.services.trackfiles import trackfile_save
 from training.worker import common
 
 pytestmark = pytest.mark.django_db
@@ -158,3 +159,31 @@ def test_tracks_imported_before_the_database_held_them_are_adopted(web):
     assert row.name == "Old oval" and bytes(row.data) == (web / "old_oval.npy").read_bytes()
     migration.adopt_local_tracks(apps, None)  # again: nothing twice
     assert TrackFile.objects.filter(track_id="old_oval").count() == 1
+
+
+def test_a_track_put_into_the_folder_by_hand_is_recorded_when_a_job_needs_it(alice, web):
+    web.mkdir(parents=True)
+    (web / "hand_oval.npy").write_bytes(_npy())
+    model = create(alice, track_id="hand_oval")
+    services.training_start(model=model, user=alice)
+    row = TrackFile.objects.get(track_id="hand_oval")
+    assert bytes(row.data) == (web / "hand_oval.npy").read_bytes()
+    assert (web / "hand_oval.sha256").read_text() == row.sha256  # this copy is that content
+
+
+def test_an_evaluation_on_a_track_put_there_by_hand_records_it_for_its_worker(alice, web):
+    web.mkdir(parents=True)
+    (web / "hand_oval.npy").write_bytes(_npy())
+    model = create(alice)
+    services.model_mark_checkpoint(model=model)
+    job = services.evaluation_start(model=model, user=alice, track_id="hand_oval", enqueue=False)
+    assert job.track_id == "hand_oval" and TrackFile.objects.filter(track_id="hand_oval").exists()
+
+
+def test_the_web_lists_a_track_another_machine_imported(alice, web, client, settings):
+    # Imported elsewhere (another web host, import_track on a worker): only the row is here.
+    trackfile_save(track_id="far_oval", name="Far oval", data=_npy())
+    settings.RACECRAFT_TRACKS_SYNC_S = 30
+    client.force_login(alice)
+    assert "Far oval" in client.get("/tracks/").content.decode()
+    assert (web / "far_oval.npy").is_file()
