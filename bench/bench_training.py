@@ -23,7 +23,7 @@ after) is printed with them.
 
     .venv/bin/python bench/bench_training.py [--seeds 3] [--minutes 8] [--lap-limit 10.0]
         [--setups defaults fast] [--modes lockstep streams] [--track reinvent_base]
-        [--tracks-dir DIR] [--redis-url URL]
+        [--tracks-dir DIR] [--redis-url URL] [--device cpu|cuda|cuda:<n>]
 
 A smoke test: ``--seeds 1 --minutes 1``. reinvent_base (DeepRacer's re:Invent 2018 track) is
 read from ``shared/tracks`` next to the repository (never committed); any built-in track works.
@@ -37,6 +37,12 @@ defaults_median_s (what a fast lap costs over a clean slow one, both measured in
 machine): fast ≤ 120 s, defaults ≤ 60 s.
 These keys are the first mode's; each further mode adds its own, prefixed with its name
 (``streams_defaults_median_s=…``), and ``{mode}_ratio=`` = its fast median / the first mode's.
+
+``--device`` (default ``RACECRAFT_TORCH_DEVICE``, else ``cpu``) is where the trainer's networks
+train, as the console's setting of that name. The CPU is the reference, so the bench never picks
+a GPU by itself (TrainingConfig's own default, ``auto``, would); ``RACECRAFT_TORCH_DEVICE=cuda``
+measures the same runs with the trainer on the GPU (the simulators, their rewards and the
+evaluation laps stay on the CPU). The device is printed under the machine.
 """
 
 from __future__ import annotations
@@ -53,8 +59,11 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 
+import torch  # noqa: E402
+
 from console.launcher import EmbeddedRedis, Supervisor  # noqa: E402
 from training.rewards.examples import example_source  # noqa: E402
+from training.rl.algorithms import resolve_device  # noqa: E402
 from training.rl.presets import DEEPRACER_DEFAULTS, RACING, Preset  # noqa: E402
 from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train  # noqa: E402
 from training.rl.simulation import launch_local  # noqa: E402
@@ -237,6 +246,14 @@ def machine() -> str:
     return f"{model}, {os.cpu_count()} cores, load average {load}"
 
 
+def device_label(device: torch.device) -> str:
+    """The trainer's device for the figures' context: ``cpu``, or ``cuda:0 (NVIDIA H200)``."""
+    if device.type != "cuda":
+        return str(device)
+    index = device.index if device.index is not None else torch.cuda.current_device()
+    return f"cuda:{index} ({torch.cuda.get_device_name(index)})"
+
+
 # ------------------------------------------------------------------------------ running
 def track_spec(track: str, tracks_dir: Path, scratch: Path, preset: Preset) -> EnvSpec:
     """The env a model created in the wizard drives (its EnvSpec defaults), on ``track``; a
@@ -273,6 +290,7 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
         eval_episodes=1,
         eval_laps=EVAL_LAPS,
         eval_from_start_line=True,
+        device=args.device,
     )
     start = time.monotonic()
     train(config, UntilGoal(run, setup.lap_limit_s))
@@ -310,13 +328,20 @@ def main() -> None:
     parser.add_argument("--track", default="reinvent_base")
     parser.add_argument("--tracks-dir", type=Path, default=SHARED)
     parser.add_argument("--redis-url", default="", help="streams: this Redis, not an embedded one")
+    parser.add_argument(
+        "--device",
+        default=os.environ.get("RACECRAFT_TORCH_DEVICE", "cpu"),
+        help="the trainer's torch device: cpu (default, the reference), cuda, cuda:<n>",
+    )
     args = parser.parse_args()
+    device = resolve_device(args.device)  # a GPU asked for that this machine lacks fails here
     setups = [
         Setup("defaults", DEEPRACER_DEFAULTS, None),
         Setup("fast", RACING, args.lap_limit),
     ]
     modes = list(dict.fromkeys(args.modes))
     print(f"machine: {machine()}", flush=True)
+    print(f"trainer device: {device_label(device)}", flush=True)
     runs: list[Run] = []
     with tempfile.TemporaryDirectory() as tmp, Supervisor() as sup:
         redis_url = args.redis_url
