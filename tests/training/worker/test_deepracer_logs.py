@@ -1,11 +1,14 @@
 """A real training and evaluation, read back by the community's own reader, ``deepracer-utils``:
-from the model's folder in an S3 store (moto's server on loopback, through the MinIO backend)
-and from the logs archive. Episode counts, per-episode times, iterations and evaluation laps
-must be what the job recorded in the database."""
+from the model's folder in an S3 store (moto's server on loopback, through the MinIO backend),
+from the logs archive extracted, and from the logs download as it is (no extraction) through
+``TarFileHandler``. Episode counts, per-episode times, iterations and evaluation laps must be
+what the job recorded in the database, and the reader's stability and real-time-factor analysis
+must find real wall-clock times. (One training serves every reader: it is the costly part.)"""
 
 from __future__ import annotations
 
 import io
+import math
 import os
 import tarfile
 import uuid
@@ -28,7 +31,9 @@ pytest.importorskip("deepracer.logs")
 from deepracer.logs import (  # noqa: E402 - only once the reader is known to be installed
     AnalysisUtils,
     DeepRacerLog,
+    LogFolderType,
     S3FileHandler,
+    TarFileHandler,
     TrainingMetrics,
 )
 
@@ -96,13 +101,46 @@ def test_deepracer_utils_reads_what_the_job_recorded(s3, tmp_path) -> None:
     _check_evaluation(log.dataframe(), evaluation)
 
     # The logs archive, extracted: the model's folder, in the console's layout.
-    with tarfile.open(fileobj=io.BytesIO(downloads.logs_archive(model))) as tar:
+    archive = downloads.logs_archive(model)
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
         tar.extractall(tmp_path / "logs", filter="data")
     local = DeepRacerLog(model_folder=str(tmp_path / "logs" / model.store_folder))
     local.load_training_trace()
     _check_training_trace(local.dataframe(), training)
     local.load_evaluation_trace(force=True)
     _check_evaluation(local.dataframe(), evaluation)
+
+    # The logs download as the browser saves it, read as it is by TarFileHandler.
+    path = tmp_path / f"{model.name}-logs.tar.gz"
+    path.write_bytes(archive)
+    _check_logs_download(path, training, evaluation)
+
+
+def _check_logs_download(path, training: list[EpisodeMetric], evaluation: EvaluationJob) -> None:
+    handler = TarFileHandler(str(path))
+    log = DeepRacerLog(filehandler=handler)
+    assert handler.type is LogFolderType.DROA_SOLUTION_LOGS
+
+    log.load_training_trace()
+    df = log.dataframe()
+    _check_training_trace(df, training)
+    for _, episode in df.groupby("unique_episode"):
+        wall = episode.sort_values("steps")["wall_clock"].to_numpy()
+        assert (np.diff(wall) > 0).all() and wall[0] > 1.7e9
+    assert df["pause_duration"].notna().all() and (df["pause_duration"] >= 0).all()
+
+    stats = log.stability.analyze()
+    assert len(stats) == df["iteration"].nunique()
+    assert all(math.isfinite(v) and v > 0 for v in stats["rtf"])
+    assert all(math.isfinite(v) and v > 0 for v in stats["avg_ms"])
+    assert all(math.isfinite(v) and v > 0 for v in stats["train_time_s"])
+
+    log.load_evaluation_trace(force=True)
+    df = log.dataframe()
+    assert list(df["stream"].unique()) == [evaluation.log_stamp]
+    _check_evaluation(df, evaluation)
+    (rtf,) = log.stability.analyze()["rtf"]
+    assert math.isfinite(rtf) and rtf > 0
 
 
 def _check_training_trace(df, training: list[EpisodeMetric]) -> None:
