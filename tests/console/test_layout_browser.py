@@ -276,9 +276,19 @@ def groups(site: Site) -> list[tuple[str, str, list[str], str]]:
 
 
 @pytest.mark.django_db(transaction=True)
-def test_every_page_group_at_three_widths(site: Site, browser_page) -> None:
-    """One browser and one server for all the groups (quick); every group is checked and
-    reported even when an earlier one fails."""
+def test_every_page_group_at_three_widths_then_validate_and_import_a_track(
+    site: Site, browser_page, tmp_path
+) -> None:
+    """One browser and one server for both checks (each costs a site: daphne, a worker, the
+    data and Chromium): the layout of every group, then the pages that act."""
+    layout_is_right(site, browser_page)
+    validate_shows_progress_and_a_track_file_is_previewed_then_imported(
+        site, browser_page, tmp_path
+    )
+
+
+def layout_is_right(site: Site, browser_page) -> None:
+    """Every group is checked and reported even when an earlier one fails."""
     failures = []
     for group, url, boxes, ready in groups(site):
         try:
@@ -299,8 +309,7 @@ def test_every_page_group_at_three_widths(site: Site, browser_page) -> None:
     assert not failures, "\n\n".join(failures)
 
 
-@pytest.mark.django_db(transaction=True)
-def test_validate_shows_progress_and_a_track_file_is_previewed_then_imported(
+def validate_shows_progress_and_a_track_file_is_previewed_then_imported(
     site: Site, browser_page, tmp_path
 ) -> None:
     import io
