@@ -71,12 +71,15 @@ class Logs:
 
 
 def _track(model: RacingModel) -> Track:
-    return _load_track(model.track_id, model.direction)
+    # Keyed by the file's content too: a track imported again is drawn anew.
+    return _load_track(model.track_id, model.direction,
+                       track_catalog().sha256(model.track_id))  # fmt: skip
 
 
 @functools.lru_cache(maxsize=32)
-def _load_track(track_id: str, direction: str) -> Track:
-    """A track in one direction (cached: building one checks its geometry, ~50 ms)."""
+def _load_track(track_id: str, direction: str, sha256: str) -> Track:
+    """A track in one direction (cached by id, direction and the file's SHA-256: building
+    one checks its geometry, ~50 ms)."""
     return track_catalog().load(track_id).in_direction(direction)
 
 

@@ -187,3 +187,13 @@ def test_the_web_lists_a_track_another_machine_imported(alice, web, client, sett
     client.force_login(alice)
     assert "Far oval" in client.get("/tracks/").content.decode()
     assert (web / "far_oval.npy").is_file()
+
+
+def test_the_analysis_draws_a_track_imported_again_anew(alice, web):
+    from training.services import analysis
+
+    services.track_add(data=_npy(), track_id="my_oval")
+    model = create(alice, track_id="my_oval")
+    before = analysis._track(model).length
+    services.track_add(data=_npy(scale=1.1), track_id="my_oval", overwrite=True)
+    assert analysis._track(model).length == pytest.approx(before * 1.1, rel=1e-3)
