@@ -102,7 +102,8 @@ class ChildProcess:
         return self.log_path.read_text() if self.log_path.exists() else ""
 
 
-def _stop(popen: subprocess.Popen[bytes]) -> None:
+def stop_child(popen: subprocess.Popen) -> None:
+    """SIGTERM, then SIGKILL after ``STOP_TIMEOUT_S``; reaped either way."""
     popen.terminate()
     try:
         popen.wait(timeout=STOP_TIMEOUT_S)
@@ -137,7 +138,7 @@ def _running(
                 time.sleep(0.2)
             yield child
         finally:
-            _stop(popen)
+            stop_child(popen)
 
 
 def celery_worker_process(

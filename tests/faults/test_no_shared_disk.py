@@ -59,6 +59,7 @@ from tests.support import (
     S3_SECRET_KEY,
     database_url,
     free_port,
+    stop_child,
 )
 from training.models import EvaluationJob, JobStatus, TrackFile, TrainingJob
 from training.store import get_store, keys_for
@@ -156,7 +157,7 @@ class Machines:
                                      stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
         process = Process(name, machine, popen, log_path, ready)
         self.processes.append(process)
-        self.stack.callback(_stop, popen)
+        self.stack.callback(stop_child, popen)
         return process
 
     def worker(self, name: str, machine: str, queues: str, concurrency: int = 1,
@@ -215,15 +216,6 @@ class Machines:
                 if machine != process.machine:
                     seen = os.listdir(f"/proc/{process.popen.pid}/root{root}")
                     assert seen == [], f"{process.name} sees {machine}'s files: {seen}"
-
-
-def _stop(popen: subprocess.Popen) -> None:
-    popen.terminate()
-    try:
-        popen.wait(timeout=30)
-    except subprocess.TimeoutExpired:
-        popen.kill()
-        popen.wait()
 
 
 # ---- the browser's side: a session, forms as the pages render them

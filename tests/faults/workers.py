@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support import database_url
+from tests.support import database_url, stop_child
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}
@@ -55,10 +55,5 @@ def celery_worker(
         assert proc.poll() is None, log_path.read_text()[-4000:]
         yield proc
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_child(proc)
         log.close()

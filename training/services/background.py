@@ -43,7 +43,6 @@ from training.services.checks import check_model_quota, check_name
 from training.services.downloads import car_archive_stored, car_model_archive
 from training.services.model_files import store_failure
 from training.services.model_imports import model_import
-from training.services.trackfiles import tracks_sync
 from training.storage import ObjectNotFound, StoreError, StoreUnavailable
 from training.store import get_store
 
@@ -168,7 +167,6 @@ def model_import_run(*, owner_id: int, name: str, description: str, upload_key: 
     is read and converted in a bounded child process (see
     :func:`~training.services.model_imports.model_import`); the rows and store writes happen here.
     Every failure comes back as a sentence with its reason."""
-    tracks_sync()  # this worker may share no disk with the web that took a track upload
     try:
         owner = get_user_model().objects.get(pk=owner_id)
         try:

@@ -124,5 +124,5 @@ def tracks_check_recorded(track_ids: list[str]) -> None:
         except (OSError, TrackError) as exc:
             raise ServiceError(f"the track {track_id!r} cannot be read here: {exc}") from None
         trackfile_save(track_id=track_id, name=catalog.info(track_id).name, data=data)
-        (folder / f"{track_id}.sha256").write_text(hashlib.sha256(data).hexdigest())
+        _sidecar(folder, track_id).write_text(hashlib.sha256(data).hexdigest())
         log.info("track %s: a file put here by hand is now recorded for every machine", track_id)
