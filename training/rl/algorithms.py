@@ -30,6 +30,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from training.rl.checkpoints import load_weights
 from training.rl.hyperparams import Hyperparameters
 from training.rl.policies import LEAN, policy_kwargs, policy_type, sac_policy_kwargs
+from training.rl.prepared import evaluate_prepared, preparable, prepare_rollout
 
 CLIP_RANGE = 0.2
 GAE_LAMBDA = 0.95
@@ -96,6 +97,9 @@ class DeepRacerPPO(PPO):
     """
 
     loss_type = "huber"
+    prepare_images = True
+    """Prepare the camera images once per update (:mod:`training.rl.prepared`); False runs
+    SB3's own path, which gives the same numbers (bench/bench_update.py's baseline)."""
 
     def train(self) -> None:
         self.policy.set_training_mode(True)
@@ -105,15 +109,23 @@ class DeepRacerPPO(PPO):
             clip_range_vf = self.clip_range_vf(self._current_progress_remaining)
         entropy_losses, pg_losses, value_losses, clip_fractions = [], [], [], []
         continue_training = True
+        prepared = self.prepare_images and preparable(self.policy)
+        if prepared:
+            prepare_rollout(self.policy, self.rollout_buffer)
         for _ in range(self.n_epochs):
             approx_kl_divs = []
             for rollout_data in self.rollout_buffer.get(self.batch_size):
                 actions = rollout_data.actions
                 if isinstance(self.action_space, spaces.Discrete):
                     actions = rollout_data.actions.long().flatten()
-                values, log_prob, entropy = self.policy.evaluate_actions(
-                    rollout_data.observations, actions
-                )
+                if prepared:
+                    values, log_prob, entropy = evaluate_prepared(
+                        self.policy, rollout_data.observations, actions
+                    )
+                else:
+                    values, log_prob, entropy = self.policy.evaluate_actions(
+                        rollout_data.observations, actions
+                    )
                 values = values.flatten()
                 advantages = rollout_data.advantages
                 if self.normalize_advantage and len(advantages) > 1:
@@ -152,6 +164,10 @@ class DeepRacerPPO(PPO):
             self._n_updates += 1
             if not continue_training:
                 break
+        # SB3 keeps the last minibatch's distribution, and with it that minibatch's autograd
+        # graph: drop it (a copy of the policy, for the live view, cannot copy a graph).
+        if hasattr(self.policy.action_dist, "distribution"):
+            self.policy.action_dist.distribution = None
 
         explained_var = explained_variance(
             self.rollout_buffer.values.flatten(), self.rollout_buffer.returns.flatten()
@@ -270,6 +286,20 @@ class DeepRacerSAC(SAC):
             self.logger.record("train/ent_coef_loss", np.mean(ent_coef_losses))
 
 
+def adam_kwargs(device: torch.device | str) -> dict:
+    """Adam's settings: DeepRacer's ε, and torch's fused Adam on a CPU or a CUDA GPU.
+
+    The fused step does the same arithmetic in one pass over each weight instead of a dozen
+    (the lean network's 400,000 weights: 0.3 against 2.6 ms a minibatch on 2 CPU threads,
+    bench/bench_update.py); its float rounding differs from the loop's in the last bit, so a
+    seed learns along a slightly different path than it did before.
+    """
+    kwargs: dict = {"eps": ADAM_EPS}
+    if torch.device(device).type in ("cpu", "cuda"):
+        kwargs["fused"] = True
+    return kwargs
+
+
 def plan_rollout_steps(episodes: int, mean_episode_steps: float, num_envs: int) -> int:
     """Steps per env so that about ``episodes`` episodes finish before the next update."""
     steps = math.ceil(episodes * max(mean_episode_steps, 1.0) / num_envs)
@@ -291,7 +321,7 @@ def build_model(
     continuous = not hasattr(env.action_space, "n")
     if algorithm == "clipped_ppo":
         kwargs = policy_kwargs(network, env.observation_space)
-        kwargs["optimizer_kwargs"] = {"eps": ADAM_EPS}
+        kwargs["optimizer_kwargs"] = adam_kwargs(device)
         model = DeepRacerPPO(
             policy_type(env.observation_space),
             env,

@@ -160,12 +160,32 @@ def load_weights(
             for part in name.split("."):
                 target = getattr(target, part)
             try:
-                target.load_state_dict(tensors[name])
+                keep_step_kind(target, target.load_state_dict, tensors[name])
             except Exception:  # optimizer state is optional; training restarts its moments
                 pass
     steps = checkpoint_data(zip_bytes).get("num_timesteps")
     if isinstance(steps, int) and steps >= 0:
         model.num_timesteps = steps
+
+
+def keep_step_kind(optimizer: Any, load: Any, state: Any) -> None:
+    """``load(state)`` into ``optimizer`` keeping how this machine runs its step.
+
+    A checkpoint's optimizer state carries the saver's ``fused``/``foreach`` flags (torch copies
+    whole parameter groups); the moments are what a checkpoint brings, the kind of step stays
+    this model's (:func:`training.rl.algorithms.adam_kwargs`). A fused step wants its step
+    counters as float tensors beside the weights.
+    """
+    flags = [{k: g.get(k) for k in ("fused", "foreach")} for g in optimizer.param_groups]
+    load(state)
+    for group, kept in zip(optimizer.param_groups, flags, strict=False):
+        group.update(kept)
+        if not kept.get("fused"):
+            continue
+        for param in group["params"]:
+            step = optimizer.state.get(param, {}).get("step")
+            if isinstance(step, torch.Tensor):
+                optimizer.state[param]["step"] = step.to(param.device, torch.float32)
 
 
 def checkpoint_data(zip_bytes: bytes) -> dict[str, Any]:

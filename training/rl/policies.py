@@ -111,9 +111,21 @@ class CameraExtractor(BaseFeaturesExtractor):
             flat = self.cnn(sample).shape[1]
         self.linear = nn.Sequential(nn.Linear(flat, dense), nn.ReLU())
         self.network = network
+        self.pooling = pool
+
+    def prepare(self, images: torch.Tensor) -> torch.Tensor:
+        """The network's front that holds no weights: the pixel averaging (lean network), or
+        the images as they are. A policy update runs it once per rollout (it is the same in
+        every epoch) and feeds the result to :meth:`forward_prepared`."""
+        return self.cnn[0](images) if self.pooling > 1 else images
+
+    def forward_prepared(self, prepared: torch.Tensor) -> torch.Tensor:
+        """The rest of the network, from :meth:`prepare`'s output."""
+        layers = self.cnn[1:] if self.pooling > 1 else self.cnn
+        return self.linear(layers(prepared))
 
     def forward(self, observations: torch.Tensor) -> torch.Tensor:
-        return self.linear(self.cnn(observations))
+        return self.forward_prepared(self.prepare(observations))
 
 
 LIDAR_EMBEDDER_UNITS = (256, 256)
@@ -152,11 +164,28 @@ class CameraLidarExtractor(BaseFeaturesExtractor):
         self.lidar = nn.Sequential(*layers)
         self.network = network
 
-    def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+    @property
+    def pooling(self) -> int:
+        return self.camera.pooling
+
+    def prepare(self, images: torch.Tensor) -> torch.Tensor:
+        """The camera network's :meth:`CameraExtractor.prepare` (the camera's images only)."""
+        return self.camera.prepare(images)
+
+    def forward_prepared(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The features from the camera's prepared images and the LIDAR vector."""
         return torch.cat(
-            [self.camera(observations[self.camera_key]), self.lidar(observations[self.lidar_key])],
+            [
+                self.camera.forward_prepared(observations[self.camera_key]),
+                self.lidar(observations[self.lidar_key]),
+            ],
             dim=1,
         )
+
+    def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        prepared = dict(observations)
+        prepared[self.camera_key] = self.prepare(observations[self.camera_key])
+        return self.forward_prepared(prepared)
 
 
 def policy_type(observation_space: gym.spaces.Space | None) -> str:

@@ -35,6 +35,7 @@ from gymnasium import spaces
 from training.rl.algorithms import build_model, set_torch_threads
 from training.rl.hyperparams import Hyperparameters
 from training.rollout.envs import EnvSpec
+from training.rollout.greedy import greedy_actions
 from training.rollout.streams import CHUNK_STEPS, HEARTBEAT_S, Session, chunk_message
 from training.rollout.vecenv import SandboxedVecEnv
 from training.sandbox import RewardFunctionError, SandboxError
@@ -203,7 +204,7 @@ class SimulationWorker:
         total = 0.0
         while not self.beat.stop.is_set():
             env.want_frames = self.beat.watched
-            actions, _ = self.policy.predict(obs, deterministic=True)
+            actions = greedy_actions(self.policy, obs)
             obs, rewards, dones, infos = env.step(actions)
             info = infos[0]
             self._frame(info, "evaluation")

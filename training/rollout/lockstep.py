@@ -22,7 +22,6 @@ import threading
 import time
 
 import numpy as np
-import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -33,6 +32,7 @@ from training.rollout.experience import (
     ExperienceRequest,
     Learner,
 )
+from training.rollout.greedy import greedy_actions
 
 log = logging.getLogger(__name__)
 
@@ -111,8 +111,7 @@ class Spectator:
             obs = venv.reset()
             due = time.monotonic()
             while not stop.is_set():
-                with torch.no_grad():
-                    actions, _ = policy.predict(obs, deterministic=True)
+                actions = greedy_actions(policy, obs)
                 obs, _rewards, _dones, infos = venv.step(actions)  # ends reset by themselves
                 frame = infos[0].pop("frame", None)
                 if frame is not None:
@@ -233,7 +232,7 @@ class LockstepExperience:
         while not done.all():
             # The live view shows the evaluation lap too: a gap only while the policy updates.
             venv.want_frames = hooks.frames_wanted()
-            actions, _ = learner.model.predict(obs, deterministic=True)
+            actions = greedy_actions(learner.model.policy, obs)
             obs, rewards, dones, infos = venv.step(actions)
             # The first car's frames (it drives on after its episode while the others finish).
             frame = infos[0].pop("frame", None)

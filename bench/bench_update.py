@@ -1,0 +1,147 @@
+"""Where one PPO policy update's time goes, before and after the update's speed-ups.
+
+One update of the racing preset (10 epochs of minibatches of 64, the lean network, 8 actions)
+over a rollout of ``--steps`` camera frames (2,000 by default: 20 episodes of about 100 steps,
+what the preset collects per update on re:Invent 2018), in three ways, measured in the same run:
+
+- **SB3's path** (the baseline): every minibatch turns its raw 160×120 frames into floats and
+  averages them to 80×60; Adam's loop of per-tensor steps (torch's ``foreach`` Adam);
+- **prepared images**: the frames prepared once per update (training/rl/prepared.py);
+- **+ fused Adam** (the console's default now): torch's fused Adam step as well
+  (training/rl/algorithms.py ``adam_kwargs``).
+
+The frames are random pixels: an update's arithmetic does not depend on what the frames show.
+Each way runs ``--repeats`` updates (after one to warm up); the table gives the median seconds
+per update and per minibatch, then torch's profile of one update of the baseline and of the
+default, by operation. Last line: ``update_s=`` (the default) ``baseline_update_s=``
+``ratio=`` (default / baseline).
+
+    .venv/bin/python bench/bench_update.py [--steps 2000] [--repeats 5] [--threads 2]
+        [--device cpu|cuda] [--no-profile]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "2")
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from gymnasium import spaces  # noqa: E402
+from stable_baselines3.common.logger import Logger  # noqa: E402
+from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
+
+from training.rl.algorithms import ADAM_EPS, build_model  # noqa: E402
+from training.rl.presets import RACING  # noqa: E402
+
+ENVS = 8  # the console's training cars
+
+
+class Frames(gym.Env):
+    """A stand-in with the car camera's observation space and the preset's actions."""
+
+    observation_space = spaces.Box(0, 255, (120, 160, 1), np.uint8)
+    action_space = spaces.Discrete(len(RACING.action_space))
+
+    def reset(self, seed=None, options=None):
+        return self.observation_space.sample(), {}
+
+    def step(self, action):
+        return self.observation_space.sample(), 0.0, False, False, {}
+
+
+def make_model(way: str, device: str):
+    model = build_model("clipped_ppo", DummyVecEnv([Frames] * ENVS), RACING.hyperparameters,
+                        device=device)  # fmt: skip
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    if way == "baseline":
+        model.prepare_images = False
+    if way != "default":  # the baseline and "prepared" keep Adam's per-tensor loop
+        optimizer = model.policy.optimizer
+        model.policy.optimizer = torch.optim.Adam(
+            model.policy.parameters(), lr=optimizer.param_groups[0]["lr"], eps=ADAM_EPS
+        )
+    return model
+
+
+def fill(model, steps: int, rng: np.random.Generator) -> None:
+    """A complete rollout of ``steps`` frames in the model's buffer."""
+    model.n_steps = 0
+    model.set_rollout_steps(max(1, steps // ENVS))
+    buffer = model.rollout_buffer
+    buffer.observations[:] = rng.integers(0, 256, buffer.observations.shape, dtype=np.uint8)
+    buffer.actions[:] = rng.integers(0, Frames.action_space.n, buffer.actions.shape)
+    buffer.advantages[:] = rng.standard_normal(buffer.advantages.shape)
+    buffer.returns[:] = rng.standard_normal(buffer.returns.shape)
+    buffer.log_probs[:] = -np.log(Frames.action_space.n)
+    buffer.values[:] = 0.0
+    buffer.full, buffer.pos = True, buffer.buffer_size
+
+
+def timed_update(model, steps: int, rng: np.random.Generator) -> float:
+    fill(model, steps, rng)
+    started = time.perf_counter()
+    model.train()
+    return time.perf_counter() - started
+
+
+def profile(model, steps: int, rng: np.random.Generator, rows: int) -> str:
+    from torch.profiler import ProfilerActivity
+    from torch.profiler import profile as torch_profile
+
+    fill(model, steps, rng)
+    with torch_profile(activities=[ProfilerActivity.CPU]) as prof:
+        model.train()
+    return prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=rows)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--no-profile", action="store_true")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    rng = np.random.default_rng(0)
+    frames = max(1, args.steps // ENVS) * ENVS
+    minibatches = RACING.hyperparameters.num_epochs * -(-frames // 64)
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+          f"torch {torch.__version__} on {args.device}, {args.threads} threads, "
+          f"load average {os.getloadavg()[0]:.1f}")  # fmt: skip
+    print(f"one update: {args.steps} frames, {minibatches} minibatches of 64, "
+          f"median of {args.repeats}\n")  # fmt: skip
+    ways = ("baseline", "prepared", "default")
+    labels = {"baseline": "SB3's path (before)", "prepared": "prepared images",
+              "default": "prepared images + fused Adam (now)"}  # fmt: skip
+    models = {way: make_model(way, args.device) for way in ways}
+    times: dict[str, list[float]] = {way: [] for way in ways}
+    for way in ways:
+        timed_update(models[way], args.steps, rng)  # warm-up
+    for _ in range(args.repeats):  # interleaved, so that a busy moment hits every way alike
+        for way in ways:
+            times[way].append(timed_update(models[way], args.steps, rng))
+    median = {way: statistics.median(times[way]) for way in ways}
+    print("| way | s per update | ms per minibatch | vs before |\n|---|---|---|---|")
+    for way in ways:
+        print(f"| {labels[way]} | {median[way]:.2f} | {median[way] / minibatches * 1000:.1f} | "
+              f"{median[way] / median['baseline']:.2f} |")  # fmt: skip
+    print(f"\nload average after: {os.getloadavg()[0]:.1f}")
+    if not args.no_profile:
+        for way in ("baseline", "default"):
+            print(f"\nprofile of one update, {labels[way]}:")
+            print(profile(models[way], args.steps, rng, 14))
+    print(f"update_s={median['default']:.3f} baseline_update_s={median['baseline']:.3f} "
+          f"ratio={median['default'] / median['baseline']:.2f}")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
