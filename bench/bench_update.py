@@ -2,13 +2,15 @@
 
 One update of the racing preset (10 epochs of minibatches of 64, the lean network, 8 actions)
 over a rollout of ``--steps`` camera frames (2,000 by default: 20 episodes of about 100 steps,
-what the preset collects per update on re:Invent 2018), in three ways, measured in the same run:
+what the preset collects per update on re:Invent 2018), in four ways, measured in the same run:
 
 - **SB3's path** (the baseline): every minibatch turns its raw 160×120 frames into floats and
   averages them to 80×60; Adam's loop of per-tensor steps (torch's ``foreach`` Adam);
 - **prepared images**: the frames prepared once per update (training/rl/prepared.py);
-- **+ fused Adam** (the console's default now): torch's fused Adam step as well
-  (training/rl/algorithms.py ``adam_kwargs``).
+- **+ fused Adam**: torch's fused Adam step as well (training/rl/algorithms.py
+  ``adam_kwargs``);
+- **+ channels-last convolutions** (the console's default now): the convolution weights in
+  torch's channels-last layout (``build_model``).
 
 The frames are random pixels: an update's arithmetic does not depend on what the frames show.
 Each way runs ``--repeats`` updates (after one to warm up); the table gives the median seconds
@@ -63,7 +65,9 @@ def make_model(way: str, device: str):
     model.set_logger(Logger(folder=None, output_formats=[]))
     if way == "baseline":
         model.prepare_images = False
-    if way != "default":  # the baseline and "prepared" keep Adam's per-tensor loop
+    if way != "default":  # the earlier ways keep the weights' default layout
+        model.policy.to(memory_format=torch.contiguous_format)
+    if way in ("baseline", "prepared"):  # Adam's per-tensor loop
         optimizer = model.policy.optimizer
         model.policy.optimizer = torch.optim.Adam(
             model.policy.parameters(), lr=optimizer.param_groups[0]["lr"], eps=ADAM_EPS
@@ -119,9 +123,9 @@ def main() -> None:
           f"load average {os.getloadavg()[0]:.1f}")  # fmt: skip
     print(f"one update: {args.steps} frames, {minibatches} minibatches of 64, "
           f"median of {args.repeats}\n")  # fmt: skip
-    ways = ("baseline", "prepared", "default")
+    ways = ("baseline", "prepared", "fused", "default")
     labels = {"baseline": "SB3's path (before)", "prepared": "prepared images",
-              "default": "prepared images + fused Adam (now)"}  # fmt: skip
+              "fused": "+ fused Adam", "default": "+ channels-last convolutions (now)"}  # fmt: skip
     models = {way: make_model(way, args.device) for way in ways}
     times: dict[str, list[float]] = {way: [] for way in ways}
     for way in ways:

@@ -361,6 +361,11 @@ def build_model(
     else:
         raise AlgorithmError(f"unknown algorithm {algorithm!r}: use clipped_ppo or sac")
     model.loss_type = hp.loss_type
+    # Channels-last convolution weights: the same numbers (torch picks other kernels; the
+    # lean network's forward and gradients come out bit for bit equal), about half the time
+    # of a convolution on a CPU. The parameters stay the same objects, so the optimizer keeps
+    # them; checkpoints load into any layout.
+    model.policy.to(memory_format=torch.channels_last)
     return model
 
 

@@ -168,3 +168,23 @@ def test_a_continuous_policy_goes_through_predict() -> None:
     ours = greedy_actions(ppo.policy, observations)
     sb3, _ = ppo.predict(observations, deterministic=True)
     assert ours.shape == (1, 2) and np.array_equal(ours, sb3)
+
+
+def test_convolutions_are_channels_last_and_checkpoints_load_anywhere() -> None:
+    ppo = model(LEAN)
+    conv = ppo.policy.features_extractor.cnn[3].weight  # 16 channels in: the layouts differ
+    assert conv.is_contiguous(memory_format=torch.channels_last) and not conv.is_contiguous()
+    assert ppo.policy.optimizer.param_groups[0]["params"][0] is next(ppo.policy.parameters())
+    frames = torch.rand(8, 1, 120, 160)
+    plain = model(LEAN)
+    plain.policy.to(memory_format=torch.contiguous_format)
+    with torch.no_grad():  # same weights, either layout: the same features
+        ours, theirs = ppo.policy.extract_features(frames), plain.policy.extract_features(frames)
+    assert torch.allclose(ours, theirs, rtol=1e-6, atol=1e-7)
+    fill(ppo)
+    ppo.train()
+    buffer = io.BytesIO()
+    ppo.save(buffer)
+    load_weights(plain, buffer.getvalue())
+    ours, theirs = ppo.policy.state_dict(), plain.policy.state_dict()
+    assert all(torch.equal(ours[k], theirs[k]) for k in ours)
