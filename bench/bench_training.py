@@ -108,6 +108,15 @@ class Run:
     update_s: float = 0.0
     eval_s: float = 0.0
     wall_s: float = 0.0
+    exits: list[tuple[int, float]] = field(default_factory=list)
+    """Where each evaluation that left the track left it: (lap, % of that lap)."""
+
+
+def exit_point(progress: float, laps_done: int, laps: int = EVAL_LAPS) -> tuple[int, float]:
+    """(lap, % of the lap) of an evaluation of ``laps`` laps that ended at ``progress`` % of
+    the whole evaluation after ``laps_done`` complete laps."""
+    within = progress * laps - 100.0 * laps_done
+    return laps_done + 1, min(100.0, max(0.0, within))
 
 
 class Streak:
@@ -152,6 +161,11 @@ class UntilGoal(TrainingHooks):
             run.seconds, run.steps = result.elapsed_s, result.total_steps
             run.qualifying_laps = [list(e) for e in self.streak.evaluations]
         shown = " ".join(f"{t:.2f}" for t in laps) or (ev.statuses[0] if ev.statuses else "")
+        for progress, status, times in zip(ev.progress, ev.statuses, ev.lap_times, strict=False):
+            if status != "lap_complete":
+                lap, where = exit_point(progress, len(times))
+                run.exits.append((lap, where))
+                shown += f" in lap {lap} at {where:.0f}% of it"
         print(f"    it {result.iteration:3d} t={result.elapsed_s:6.1f}s "
               f"steps={result.total_steps:6d} train {result.train_progress:5.1f}%  "
               f"eval {ev.mean_progress:5.1f}%  {shown}", flush=True)  # fmt: skip
@@ -313,6 +327,21 @@ def print_table(runs: list[Run]) -> None:
               f"{fmt(r.best_lap_s, 2):>10}  {laps}")  # fmt: skip
 
 
+def print_exits(runs: list[Run]) -> None:
+    """Where the evaluations that failed left the track, per setup: by lap and by tenth of
+    the lap (every seed together)."""
+    for mode, setup in dict.fromkeys((r.mode, r.setup) for r in runs):
+        exits = [e for r in runs if (r.mode, r.setup) == (mode, setup) for e in r.exits]
+        if not exits:
+            continue
+        by_lap = [sum(lap == n for lap, _ in exits) for n in range(1, EVAL_LAPS + 1)]
+        by_tenth = [sum(min(int(at // 10), 9) == b for _, at in exits) for b in range(10)]
+        laps = ", ".join(f"{n + 1}: {c}" for n, c in enumerate(by_lap))
+        tenths = " ".join(f"{10 * b}-{10 * b + 10}%: {c}" for b, c in enumerate(by_tenth))
+        print(f"{mode} {setup}: {len(exits)} evaluations left the track; by lap {laps}; "
+              f"by tenth of the lap {tenths}")  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per setup")
@@ -362,6 +391,8 @@ def main() -> None:
 
     print()
     print_table(runs)
+    print()
+    print_exits(runs)
     summaries = {
         (mode, s.name): summarise(
             [r for r in runs if r.mode == mode and r.setup == s.name], limit_s=args.minutes * 60
