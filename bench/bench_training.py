@@ -10,6 +10,10 @@ update one evaluation drives 3 consecutive laps from the start line (the clock i
 - **fast** (the racing preset) stops at three clean 3-lap evaluations in a row with every lap
   at most ``--lap-limit`` seconds (10.0).
 
+Each iteration's line says where a failed evaluation left the track (lap, % of that lap), and
+after the table one line per setup sums those places over its seeds (by lap, by tenth of the
+lap): where the greedy car keeps failing on the way to the goal.
+
 ``--modes`` says how the simulation runs (``RACECRAFT_SIMULATION``): ``lockstep``, the
 console's default (the trainer steps 8 cars in 2 sandboxed workers, then updates, then
 evaluates), and ``streams`` (2 simulation workers own their episodes and stream them through
