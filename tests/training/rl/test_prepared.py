@@ -188,3 +188,17 @@ def test_convolutions_are_channels_last_and_checkpoints_load_anywhere() -> None:
     load_weights(plain, buffer.getvalue())
     ours, theirs = ppo.policy.state_dict(), plain.policy.state_dict()
     assert all(torch.equal(ours[k], theirs[k]) for k in ours)
+
+
+def test_the_car_graph_of_a_channels_last_model_is_the_same() -> None:
+    from training.interchange.carmodel import export_car_graph
+    from training.rl.metadata import build_metadata
+
+    actions = [{"steering_angle": a, "speed": 1.0} for a in (-30, -15, 0, 15, 30)]
+    meta = build_metadata(action_space=actions, neural_network=LEAN)
+    ppo = model(LEAN)
+    fill(ppo)
+    ppo.train()
+    trained = export_car_graph(ppo, meta)
+    ppo.policy.to(memory_format=torch.contiguous_format)
+    assert export_car_graph(ppo, meta) == trained
