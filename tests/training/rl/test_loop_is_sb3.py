@@ -63,3 +63,33 @@ def test_a_lockstep_iteration_is_sb3_learn_bit_for_bit():
         assert any(not torch.equal(ours[k], fresh[k]) for k in ours)  # the update did learn
     finally:
         venv.close()
+
+
+def test_ppo_drives_on_one_thread_and_updates_on_the_configured_ones(monkeypatch):
+    import torch
+
+    from training.rl import algorithms
+    from training.rollout.lockstep import LockstepExperience
+
+    seen: dict[str, list[int]] = {"gather": [], "train": [], "evaluate": []}
+    gather, evaluate = LockstepExperience.gather, LockstepExperience.evaluate
+    update = algorithms.DeepRacerPPO.train
+
+    def watched(name, fn):
+        def call(*args, **kwargs):
+            seen[name].append(torch.get_num_threads())
+            return fn(*args, **kwargs)
+
+        return call
+
+    monkeypatch.setattr(LockstepExperience, "gather", watched("gather", gather))
+    monkeypatch.setattr(LockstepExperience, "evaluate", watched("evaluate", evaluate))
+    monkeypatch.setattr(algorithms.DeepRacerPPO, "train", watched("train", update))
+    before = torch.get_num_threads()
+    try:
+        train(TrainingConfig(spec=SPEC, network=TINY, hyperparameters=HP, reward_function=reward,
+                             num_envs=2, eval_episodes=1, seed=7, device="cpu",
+                             torch_threads=2, inference_threads=1), One())  # fmt: skip
+    finally:
+        torch.set_num_threads(before)
+    assert seen == {"gather": [1], "train": [2], "evaluate": [1]}
