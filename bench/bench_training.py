@@ -116,11 +116,10 @@ class Run:
     """Where each evaluation that left the track left it: (lap, % of that lap)."""
 
 
-def exit_point(progress: float, laps_done: int, laps: int = EVAL_LAPS) -> tuple[int, float]:
-    """(lap, % of the lap) of an evaluation of ``laps`` laps that ended at ``progress`` % of
-    the whole evaluation after ``laps_done`` complete laps."""
-    within = progress * laps - 100.0 * laps_done
-    return laps_done + 1, min(100.0, max(0.0, within))
+def exit_point(progress: float, lap: int | None) -> tuple[int, float]:
+    """(lap, % of the lap) where an evaluation ended: its progress is the lap's own (0-100);
+    lap 0 where the source does not say which lap."""
+    return (lap or 0), min(100.0, max(0.0, progress))
 
 
 class Streak:
@@ -165,11 +164,11 @@ class UntilGoal(TrainingHooks):
             run.seconds, run.steps = result.elapsed_s, result.total_steps
             run.qualifying_laps = [list(e) for e in self.streak.evaluations]
         shown = " ".join(f"{t:.2f}" for t in laps) or (ev.statuses[0] if ev.statuses else "")
-        for progress, status, times in zip(ev.progress, ev.statuses, ev.lap_times, strict=False):
+        laps_ended = ev.ended_in_lap or [None] * len(ev.progress)
+        for progress, status, lap in zip(ev.progress, ev.statuses, laps_ended, strict=False):
             if status != "lap_complete":
-                lap, where = exit_point(progress, len(times))
-                run.exits.append((lap, where))
-                shown += f" in lap {lap} at {where:.0f}% of it"
+                run.exits.append(exit_point(progress, lap))
+                shown += f" in lap {lap or '?'} at {progress:.0f}% of it"
         print(f"    it {result.iteration:3d} t={result.elapsed_s:6.1f}s "
               f"steps={result.total_steps:6d} train {result.train_progress:5.1f}%  "
               f"eval {ev.mean_progress:5.1f}%  {shown}", flush=True)  # fmt: skip
@@ -339,8 +338,10 @@ def print_exits(runs: list[Run]) -> None:
         if not exits:
             continue
         by_lap = [sum(lap == n for lap, _ in exits) for n in range(1, EVAL_LAPS + 1)]
+        unknown = sum(lap == 0 for lap, _ in exits)
         by_tenth = [sum(min(int(at // 10), 9) == b for _, at in exits) for b in range(10)]
         laps = ", ".join(f"{n + 1}: {c}" for n, c in enumerate(by_lap))
+        laps += f", unknown: {unknown}" if unknown else ""
         tenths = " ".join(f"{10 * b}-{10 * b + 10}%: {c}" for b, c in enumerate(by_tenth))
         print(f"{mode} {setup}: {len(exits)} evaluations left the track; by lap {laps}; "
               f"by tenth of the lap {tenths}")  # fmt: skip

@@ -105,13 +105,18 @@ def test_each_mode_trains_as_a_console_job_of_that_mode_would(bench) -> None:
 
 
 def test_where_failed_evaluations_left_the_track(bench, capsys) -> None:
-    assert bench.exit_point(50.0, 1) == (2, 50.0)  # halfway round the second of 3 laps
-    assert bench.exit_point(10.0, 0) == (1, 30.0)
-    assert bench.exit_point(100.0, 2) == (3, 100.0)
-    runs = [bench.Run("fast", 0, exits=[(2, 12.0), (2, 18.0), (1, 95.0)]),
-            bench.Run("fast", 1, exits=[(3, 40.0)]), bench.Run("defaults", 0)]  # fmt: skip
+    assert bench.exit_point(50.0, 2) == (2, 50.0)  # halfway round the second lap
+    assert bench.exit_point(130.0, 1) == (1, 100.0)
+    assert bench.exit_point(12.0, None) == (0, 12.0)  # a source that does not say the lap
+    runs = [
+        bench.Run("fast", 0, exits=[(2, 12.0), (2, 18.0), (1, 95.0)]),
+        bench.Run("fast", 1, exits=[(3, 40.0), (0, 5.0)]),
+        bench.Run("defaults", 0),
+    ]
     bench.print_exits(runs)
     out = capsys.readouterr().out
-    assert "lockstep fast: 4 evaluations left the track; by lap 1: 1, 2: 2, 3: 1;" in out
+    assert (
+        "lockstep fast: 5 evaluations left the track; by lap 1: 1, 2: 2, 3: 1, unknown: 1;" in out
+    )
     assert "10-20%: 2" in out and "40-50%: 1" in out and "90-100%: 1" in out
     assert "defaults" not in out  # no failed evaluation, no line

@@ -37,9 +37,12 @@ class EvaluationOutcome:
     reward per episode."""
 
     progress: list[float]
+    """Of the lap each episode ended in (every lap counts from 0 to 100)."""
     statuses: list[str]
     lap_times: list[list[float]]
     rewards: list[float]
+    ended_in_lap: list[int] = field(default_factory=list)
+    """The lap (1, 2, ...) each episode ended in, where the source knows it (lockstep)."""
 
     @property
     def mean_progress(self) -> float:

@@ -228,7 +228,8 @@ class LockstepExperience:
             venv.set_options([{"start_progress": p} for p in self.request.eval_starts()])
         obs = venv.reset()
         done = np.zeros(n, dtype=bool)
-        outcome = EvaluationOutcome([0.0] * n, [""] * n, [[] for _ in range(n)], [0.0] * n)
+        outcome = EvaluationOutcome([0.0] * n, [""] * n, [[] for _ in range(n)], [0.0] * n,
+                                    [1] * n)  # fmt: skip
         while not done.all():
             # The live view shows the evaluation lap too: a gap only while the policy updates.
             venv.want_frames = hooks.frames_wanted()
@@ -246,6 +247,7 @@ class LockstepExperience:
                     outcome.progress[i] = float(info["progress"])
                     outcome.statuses[i] = str(info["status"])
                     outcome.lap_times[i] = list(info.get("lap_times", []))
+                    outcome.ended_in_lap[i] = int(info.get("lap", 1))
             if learner.stop_reason():
                 break
         return outcome

@@ -45,6 +45,7 @@ def test_a_lockstep_iteration_is_sb3_learn_bit_for_bit():
     train(TrainingConfig(spec=SPEC, network=TINY, hyperparameters=HP, reward_function=reward,
                          num_envs=2, eval_episodes=1, seed=7, device="cpu"), hooks)  # fmt: skip
     [result] = hooks.results
+    assert result.evaluation.ended_in_lap == [1]  # one 1-lap evaluation: it ended in lap 1
 
     venv = LocalVecEnv(SPEC, 2, reward)
     try:
