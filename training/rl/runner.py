@@ -197,8 +197,8 @@ class TrainingLoop:
     def run(self) -> TrainingSummary:
         try:
             self.source.start(self)
+            self._threads(inference=True)  # the update sets its own and gives them back
             while not self.stop_reason():
-                self._threads(inference=True)
                 experience = self.source.gather(self)
                 if experience is None:
                     break  # an interrupted rollout is not learnt from
