@@ -26,7 +26,8 @@ CPUs) beside the wall time (which depends on the machine and its load), and wher
 after) is printed with them.
 
     .venv/bin/python bench/bench_training.py [--seeds 3] [--minutes 8] [--lap-limit 10.0]
-        [--setups defaults fast] [--modes lockstep streams] [--track reinvent_base]
+        [--first-seed 0] [--setups defaults fast] [--modes lockstep streams]
+        [--track reinvent_base]
         [--tracks-dir DIR] [--redis-url URL] [--device cpu|cuda|cuda:<n>]
 
 A smoke test: ``--seeds 1 --minutes 1``. reinvent_base (DeepRacer's re:Invent 2018 track) is
@@ -347,9 +348,17 @@ def print_exits(runs: list[Run]) -> None:
               f"by tenth of the lap {tenths}")  # fmt: skip
 
 
+def seeds_of(args: argparse.Namespace) -> range:
+    """The seeds each setup runs: ``--first-seed`` K and on, ``--seeds`` of them."""
+    return range(args.first_seed, args.first_seed + args.seeds)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per setup")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="start at this seed (K..K+N-1): one process per seed runs them side "
+                             "by side")  # fmt: skip
     parser.add_argument("--minutes", type=float, default=8.0, help="time limit of one run")
     parser.add_argument("--lap-limit", type=float, default=10.0, help="fast: slowest lap (s)")
     parser.add_argument("--setups", nargs="+", choices=("defaults", "fast"),
@@ -388,7 +397,7 @@ def main() -> None:
             redis_url = redis.url
         for mode in modes:
             for setup in (s for s in setups if s.name in args.setups):
-                for seed in range(args.seeds):
+                for seed in seeds_of(args):
                     print(f"{mode}: {setup.name} ({setup.preset.label}) seed {seed} on "
                           f"{args.track}", flush=True)  # fmt: skip
                     runs.append(run_one(setup, seed, args, Path(tmp), mode=mode,

@@ -9,14 +9,15 @@ what the preset collects per update on re:Invent 2018), in four ways, measured i
 - **prepared images**: the frames prepared once per update (training/rl/prepared.py);
 - **+ fused Adam**: torch's fused Adam step as well (training/rl/algorithms.py
   ``adam_kwargs``);
-- **+ channels-last convolutions** (the console's default now): the convolution weights in
-  torch's channels-last layout (``build_model``).
+- **+ channels-last convolutions**: the convolution weights in torch's channels-last layout
+  (``build_model`` does this on a CPU, the console's default there; a GPU keeps the default
+  layout, which an H100 ran faster: ``CHANNELS_LAST_DEVICES``).
 
 The frames are random pixels: an update's arithmetic does not depend on what the frames show.
 Each way runs ``--repeats`` updates (after one to warm up); the table gives the median seconds
 per update and per minibatch, then torch's profile of one update of the baseline and of the
-default, by operation. Last line: ``update_s=`` (the default) ``baseline_update_s=``
-``ratio=`` (default / baseline).
+console's way on ``--device`` (marked "now"), by operation. Last line: ``update_s=`` (the
+console's way) ``baseline_update_s=`` ``ratio=`` (the console's way / baseline).
 
     .venv/bin/python bench/bench_update.py [--steps 2000] [--repeats 5] [--threads 2]
         [--device cpu|cuda] [--no-profile]
@@ -40,7 +41,7 @@ from gymnasium import spaces  # noqa: E402
 from stable_baselines3.common.logger import Logger  # noqa: E402
 from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
 
-from training.rl.algorithms import ADAM_EPS, build_model  # noqa: E402
+from training.rl.algorithms import ADAM_EPS, CHANNELS_LAST_DEVICES, build_model  # noqa: E402
 from training.rl.presets import RACING  # noqa: E402
 
 ENVS = 8  # the console's training cars
@@ -65,8 +66,9 @@ def make_model(way: str, device: str):
     model.set_logger(Logger(folder=None, output_formats=[]))
     if way == "baseline":
         model.prepare_images = False
-    if way != "default":  # the earlier ways keep the weights' default layout
-        model.policy.to(memory_format=torch.contiguous_format)
+    # The earlier ways keep the weights' default layout; the last takes channels-last anywhere.
+    layout = torch.channels_last if way == "channels_last" else torch.contiguous_format
+    model.policy.to(memory_format=layout)
     if way in ("baseline", "prepared"):  # Adam's per-tensor loop
         optimizer = model.policy.optimizer
         model.policy.optimizer = torch.optim.Adam(
@@ -106,6 +108,11 @@ def profile(model, steps: int, rng: np.random.Generator, rows: int) -> str:
     return prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=rows)
 
 
+def console_way(device: str) -> str:
+    """The way a console job updates on ``device``: channels-last on a CPU only."""
+    return "channels_last" if torch.device(device).type in CHANNELS_LAST_DEVICES else "fused"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000)
@@ -123,9 +130,11 @@ def main() -> None:
           f"load average {os.getloadavg()[0]:.1f}")  # fmt: skip
     print(f"one update: {args.steps} frames, {minibatches} minibatches of 64, "
           f"median of {args.repeats}\n")  # fmt: skip
-    ways = ("baseline", "prepared", "fused", "default")
+    ways = ("baseline", "prepared", "fused", "channels_last")
+    now = console_way(args.device)
     labels = {"baseline": "SB3's path (before)", "prepared": "prepared images",
-              "fused": "+ fused Adam", "default": "+ channels-last convolutions (now)"}  # fmt: skip
+              "fused": "+ fused Adam", "channels_last": "+ channels-last convolutions"}  # fmt: skip
+    labels[now] += " (now)"
     models = {way: make_model(way, args.device) for way in ways}
     times: dict[str, list[float]] = {way: [] for way in ways}
     for way in ways:
@@ -140,11 +149,11 @@ def main() -> None:
               f"{median[way] / median['baseline']:.2f} |")  # fmt: skip
     print(f"\nload average after: {os.getloadavg()[0]:.1f}")
     if not args.no_profile:
-        for way in ("baseline", "default"):
+        for way in ("baseline", now):
             print(f"\nprofile of one update, {labels[way]}:")
             print(profile(models[way], args.steps, rng, 14))
-    print(f"update_s={median['default']:.3f} baseline_update_s={median['baseline']:.3f} "
-          f"ratio={median['default'] / median['baseline']:.2f}")  # fmt: skip
+    print(f"update_s={median[now]:.3f} baseline_update_s={median['baseline']:.3f} "
+          f"ratio={median[now] / median['baseline']:.2f}")  # fmt: skip
 
 
 if __name__ == "__main__":

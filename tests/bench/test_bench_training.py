@@ -104,6 +104,13 @@ def test_each_mode_trains_as_a_console_job_of_that_mode_would(bench) -> None:
     assert streams.redis_url == "redis://127.0.0.1:6379/15"
 
 
+def test_first_seed_lets_one_process_per_seed_run_side_by_side(bench) -> None:
+    import argparse
+
+    assert list(bench.seeds_of(argparse.Namespace(seeds=3, first_seed=0))) == [0, 1, 2]
+    assert list(bench.seeds_of(argparse.Namespace(seeds=1, first_seed=4))) == [4]
+
+
 def test_where_failed_evaluations_left_the_track(bench, capsys) -> None:
     assert bench.exit_point(50.0, 2) == (2, 50.0)  # halfway round the second lap
     assert bench.exit_point(130.0, 1) == (1, 100.0)

@@ -28,7 +28,9 @@ def test_every_way_updates_and_the_last_line_has_the_ratio(monkeypatch, capsys) 
 
 def test_the_ways_are_what_they_say() -> None:
     with load_bench("bench_update") as bench:
-        before, now = bench.make_model("baseline", "cpu"), bench.make_model("default", "cpu")
+        before, now = bench.make_model("baseline", "cpu"), bench.make_model("channels_last", "cpu")
+        assert bench.console_way("cpu") == "channels_last"  # a GPU keeps the default layout
+        assert bench.console_way("cuda") == bench.console_way("cuda:1") == "fused"
     assert before.prepare_images is False and now.prepare_images is True
     assert not before.policy.optimizer.param_groups[0].get("fused")
     assert now.policy.optimizer.param_groups[0]["fused"] is True

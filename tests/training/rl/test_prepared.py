@@ -190,6 +190,15 @@ def test_convolutions_are_channels_last_and_checkpoints_load_anywhere() -> None:
     assert all(torch.equal(ours[k], theirs[k]) for k in ours)
 
 
+def test_only_the_devices_named_take_channels_last(monkeypatch) -> None:
+    from training.rl import algorithms
+
+    assert algorithms.CHANNELS_LAST_DEVICES == ("cpu",)  # an H100 updated slower with it
+    monkeypatch.setattr(algorithms, "CHANNELS_LAST_DEVICES", ("cuda",))
+    conv = model(LEAN).policy.features_extractor.cnn[3].weight
+    assert conv.is_contiguous() and not conv.is_contiguous(memory_format=torch.channels_last)
+
+
 def test_the_car_graph_of_a_channels_last_model_is_the_same() -> None:
     from training.interchange.carmodel import export_car_graph
     from training.rl.metadata import build_metadata
