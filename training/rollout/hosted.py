@@ -16,6 +16,10 @@ def worker_prepare(args: dict) -> EnvRunner:
     """Runs in the worker BEFORE lock-down: imports and builds the envs (files are read here)."""
     import cv2
 
+    # The live view's chase camera, imported now: without Landlock, seccomp refuses every
+    # open() after lock-down, and the first frame would fail to import it.
+    import racing.video  # noqa: F401
+
     cv2.setNumThreads(1)  # no thread pool: the locked-down worker may not start threads
     spec = EnvSpec.from_json(args["spec"])
     first = int(args.get("first_env", 0))  # this worker's envs, counted across the run

@@ -30,3 +30,33 @@ def test_the_worker_entry_points_exist() -> None:
     for ref in (WORKER_MAIN, WORKER_PREPARE):
         module, name = ref.split(":")
         assert callable(getattr(importlib.import_module(module), name))
+
+
+def test_live_frames_come_from_a_worker_without_landlock() -> None:
+    """Without Landlock, seccomp refuses every open() after lock-down, so whatever the live
+    view needs is imported before it (the chase view's module was imported on the first frame,
+    and the frames failed with PermissionError)."""
+    from training.rollout.envs import EnvSpec
+    from training.sandbox.process import SandboxProcess
+    from training.rollout.vecenv import ROLLOUT_LIMITS
+
+    spec = EnvSpec(track="racecraft_oval")
+    worker = SandboxProcess(
+        target=WORKER_MAIN, prepare=WORKER_PREPARE, limits=ROLLOUT_LIMITS,
+        reward_source="def reward_function(params):\n    return 1.0\n",
+        args={"spec": spec.to_json(), "num_envs": 1, "phase": "training", "first_env": 0},
+        disabled_layers=("landlock",),
+    )  # fmt: skip
+    try:
+        worker.launch()
+        layers = worker.wait_started()
+        assert layers["seccomp"] == "active (all opens refused: no Landlock)"
+        worker.send({"cmd": "reset", "seeds": [0]})
+        worker.recv(timeout=60)
+        worker.send({"cmd": "step", "actions": [0], "frames": True})
+        reply = worker.recv(timeout=60)
+        assert reply.kind == "message", reply
+        frame = reply.value["infos"][0]["frame"]
+        assert len(frame["camera"]) > 100 and len(frame["chase"]) > 100  # JPEG bytes
+    finally:
+        worker.close()
