@@ -37,8 +37,8 @@ def test_live_frames_come_from_a_worker_without_landlock() -> None:
     view needs is imported before it (the chase view's module was imported on the first frame,
     and the frames failed with PermissionError)."""
     from training.rollout.envs import EnvSpec
-    from training.sandbox.process import SandboxProcess
     from training.rollout.vecenv import ROLLOUT_LIMITS
+    from training.sandbox.process import SandboxProcess
 
     spec = EnvSpec(track="racecraft_oval")
     worker = SandboxProcess(
