@@ -46,9 +46,11 @@ def make_envs(spec: EnvSpec, num_envs: int, *, reward_source: str | None,
 @dataclass(frozen=True)
 class LocalRollouts:
     """Lockstep: ``num_workers`` sandboxed processes on this machine drive the training cars,
-    one more drives the evaluation episodes."""
+    one more drives the evaluation episodes (PPO: beside the next rollout, unless
+    ``overlap_evaluation`` is False; see :class:`LockstepExperience`)."""
 
     num_workers: int = 2
+    overlap_evaluation: bool = True
 
     def experience(self, request: ExperienceRequest) -> ExperienceSource:
         kwargs = {"reward_source": request.reward_source,
@@ -60,7 +62,8 @@ class LocalRollouts:
         except BaseException:
             venv.close()
             raise
-        return LockstepExperience(request, venv, eval_venv)
+        return LockstepExperience(request, venv, eval_venv,
+                                  overlap_evaluation=self.overlap_evaluation)  # fmt: skip
 
 
 @dataclass(frozen=True)

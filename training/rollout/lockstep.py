@@ -3,6 +3,14 @@ this machine, or its own process for a trusted reward), as DeepRacer's rollout w
 with the trainer waiting; then the loop updates; then one deterministic episode per env of an
 evaluation env of its own measures the new policy.
 
+PPO's evaluation runs beside the next rollout, whose policy is the one it measures: after
+each training step the trainer sends the evaluation car its next action and takes the reply
+after the next training step, so the evaluation worker steps while the trainer chooses the
+training cars' actions and waits for their workers (:class:`Evaluation`). What is left of it
+at the rollout's end runs then; its outcome goes back as soon as it ends. Nothing learnt
+changes: the same steps, updates and outcomes as evaluating first (tested), in less time.
+While an evaluation runs, its car is on the live view; the training cars' frames follow.
+
 PPO's rollout is stable-baselines3's own ``collect_rollouts`` into the model's rollout buffer,
 sized before each update so that about ``episodes_per_update`` episodes fit in it; the loop's
 update is SB3's ``train``, so an iteration is exactly what SB3's ``learn`` does. SAC learns as
@@ -61,16 +69,82 @@ class _StepWatcher(BaseCallback):
         source, learner = self.source, self.learner
         for info in self.locals.get("infos", ()):
             source.collect(info, learner)
-        wanted = learner.hooks.frames_wanted()
+        # The live view shows the evaluation beside the rollout while there is one.
+        wanted = learner.hooks.frames_wanted() and source.evaluating is None
         if wanted != source.venv.want_frames:
             source.venv.want_frames = wanted
+        source.advance_evaluation(learner)
         return not learner.stop_reason()
 
     def _on_rollout_start(self) -> None:
         self.source.spectator.stop()
 
     def _on_rollout_end(self) -> None:
+        self.source.finish_evaluation(self.learner)
         self.source.spectator.start(self.learner, self.learner.iteration + 1)
+
+
+def _send_step(venv: VecEnv, actions: np.ndarray) -> None:
+    """A step's first half: a worker env (:meth:`~training.rollout.vecenv._WorkerVecEnv.send_step`)
+    steps while the trainer goes on; any other VecEnv steps here."""
+    if hasattr(venv, "send_step"):
+        venv.send_step(actions)
+    else:
+        venv.step_async(actions)
+
+
+def _receive_step(venv: VecEnv):
+    return venv.receive_step() if hasattr(venv, "receive_step") else venv.step_wait()
+
+
+class Evaluation:
+    """One evaluation: a deterministic episode per env of the eval env with the policy as it
+    is when it starts, a step at a time (:meth:`send`, then :meth:`receive`), so that it can
+    run beside the next rollout; ``busy_s`` is the trainer's time spent on it."""
+
+    def __init__(self, venv: VecEnv, request: ExperienceRequest, iteration: int) -> None:
+        self.venv, self.iteration = venv, iteration
+        n = venv.num_envs
+        if request.spread_eval_starts:
+            venv.set_options([{"start_progress": p} for p in request.eval_starts()])
+        t0 = time.monotonic()
+        self.obs = venv.reset()
+        self.done = np.zeros(n, dtype=bool)
+        self.outcome = EvaluationOutcome([0.0] * n, [""] * n, [[] for _ in range(n)], [0.0] * n,
+                                         [1] * n)  # fmt: skip
+        self.in_flight = False
+        self.busy_s = time.monotonic() - t0
+
+    @property
+    def finished(self) -> bool:
+        return bool(self.done.all())
+
+    def send(self, policy) -> None:
+        t0 = time.monotonic()
+        _send_step(self.venv, greedy_actions(policy, self.obs))
+        self.in_flight = True
+        self.busy_s += time.monotonic() - t0
+
+    def receive(self, hooks) -> None:
+        """The step's replies; the first car's frame goes to ``hooks`` (it drives on after its
+        episode while the others finish)."""
+        t0 = time.monotonic()
+        self.obs, rewards, dones, infos = _receive_step(self.venv)
+        self.in_flight = False
+        frame = infos[0].pop("frame", None)
+        if frame is not None:
+            hooks.on_frame({**frame, "phase": "evaluation", "iteration": self.iteration})
+        outcome = self.outcome
+        for i in np.flatnonzero(~self.done):
+            outcome.rewards[i] += float(rewards[i])
+            info = infos[i]
+            if dones[i]:
+                self.done[i] = True
+                outcome.progress[i] = float(info["progress"])
+                outcome.statuses[i] = str(info["status"])
+                outcome.lap_times[i] = list(info.get("lap_times", []))
+                outcome.ended_in_lap[i] = int(info.get("lap", 1))
+        self.busy_s += time.monotonic() - t0
 
 
 class Spectator:
@@ -127,12 +201,16 @@ class LockstepExperience:
     """An :class:`~training.rollout.experience.ExperienceSource` stepping ``venv`` (training)
     and ``eval_venv`` (one deterministic episode per env after each update) from the trainer."""
 
-    def __init__(self, request: ExperienceRequest, venv: VecEnv, eval_venv: VecEnv) -> None:
+    def __init__(self, request: ExperienceRequest, venv: VecEnv, eval_venv: VecEnv, *,
+                 overlap_evaluation: bool = True) -> None:  # fmt: skip
         self.request = request
         self.venv = self.env = venv
         self.eval_venv = eval_venv
         self.venv.seed(request.seed)
         self.spectator = Spectator(eval_venv, enabled=request.on_policy)
+        self.overlap_evaluation = overlap_evaluation
+        self.evaluating: Evaluation | None = None
+        """The evaluation under way beside the rollout (PPO), if any."""
         self.episode_steps: list[int] = []
         self.longest_seen = 0  # steps of the longest episode seen so far, finished or not
         self._episodes: list[tuple[float, float]] = []
@@ -213,47 +291,58 @@ class LockstepExperience:
         return not learner.stop_reason()
 
     def evaluate(self, learner: Learner, iteration: int) -> None:
-        """One deterministic episode per eval env, now; the outcome goes straight back."""
+        """PPO: the evaluation starts now and drives a step beside each step of the next
+        rollout (its policy is the one that rollout drives with), and whatever is left of it
+        at the rollout's end is driven then; its outcome goes back when it ends. SAC (whose
+        policy changes as it drives) and ``overlap_evaluation=False``: the whole evaluation,
+        now."""
         self.spectator.stop()
-        t0 = time.monotonic()
-        outcome = self._evaluate(learner, iteration)
-        wall_s = time.monotonic() - t0
+        self.evaluating = Evaluation(self.eval_venv, self.request, iteration)
+        if self.overlap_evaluation and self.request.on_policy:
+            self.venv.want_frames = False  # the evaluation's car is on the live view first
+            return
+        self.finish_evaluation(learner)
         self.spectator.start(learner, iteration)  # while the iteration is stored and logged
-        learner.evaluated(iteration, outcome, wall_s)
 
-    def _evaluate(self, learner: Learner, iteration: int) -> EvaluationOutcome:
-        venv, hooks = self.eval_venv, learner.hooks
-        n = venv.num_envs
-        if self.request.spread_eval_starts:
-            venv.set_options([{"start_progress": p} for p in self.request.eval_starts()])
-        obs = venv.reset()
-        done = np.zeros(n, dtype=bool)
-        outcome = EvaluationOutcome([0.0] * n, [""] * n, [[] for _ in range(n)], [0.0] * n,
-                                    [1] * n)  # fmt: skip
-        while not done.all():
-            # The live view shows the evaluation lap too: a gap only while the policy updates.
-            venv.want_frames = hooks.frames_wanted()
-            actions = greedy_actions(learner.model.policy, obs)
-            obs, rewards, dones, infos = venv.step(actions)
-            # The first car's frames (it drives on after its episode while the others finish).
-            frame = infos[0].pop("frame", None)
-            if frame is not None:
-                hooks.on_frame({**frame, "phase": "evaluation", "iteration": iteration})
-            for i in np.flatnonzero(~done):
-                outcome.rewards[i] += float(rewards[i])
-                info = infos[i]
-                if dones[i]:
-                    done[i] = True
-                    outcome.progress[i] = float(info["progress"])
-                    outcome.statuses[i] = str(info["status"])
-                    outcome.lap_times[i] = list(info.get("lap_times", []))
-                    outcome.ended_in_lap[i] = int(info.get("lap", 1))
-            if learner.stop_reason():
+    def advance_evaluation(self, learner: Learner) -> None:
+        """One more step of the evaluation under way, if any, while the rollout's envs step."""
+        evaluation = self.evaluating
+        if evaluation is None:
+            return
+        if evaluation.in_flight:
+            evaluation.receive(learner.hooks)
+        if evaluation.finished:
+            self._evaluated(learner)
+        else:
+            self.eval_venv.want_frames = learner.hooks.frames_wanted()
+            evaluation.send(learner.model.policy)
+
+    def finish_evaluation(self, learner: Learner, *, until_stop: bool = True) -> None:
+        """Drive the evaluation under way, if any, to its end (``until_stop``: or to a stop of
+        the loop) and hand back its outcome."""
+        evaluation, hooks = self.evaluating, learner.hooks
+        if evaluation is None:
+            return
+        while not evaluation.finished:
+            if not evaluation.in_flight:
+                # The live view shows the evaluation lap too: a gap only while the policy updates.
+                self.eval_venv.want_frames = hooks.frames_wanted()
+                evaluation.send(learner.model.policy)
+            evaluation.receive(hooks)
+            if until_stop and learner.stop_reason():
                 break
-        return outcome
+        self._evaluated(learner)
+
+    def _evaluated(self, learner: Learner) -> None:
+        evaluation, self.evaluating = self.evaluating, None
+        if evaluation.in_flight:  # stopped with a step out: its reply is not left in the pipe
+            evaluation.receive(learner.hooks)
+        learner.evaluated(evaluation.iteration, evaluation.outcome, evaluation.busy_s)
 
     def finish(self, learner: Learner) -> None:
-        """Every evaluation was handed back as it ran."""
+        """The last evaluation, if the loop stopped before the rollout it ran beside ended: to
+        its end (a few seconds at most), since its iteration was learnt and is kept."""
+        self.finish_evaluation(learner, until_stop=False)
 
     def close(self) -> None:
         self.spectator.stop()

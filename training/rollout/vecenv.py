@@ -130,13 +130,25 @@ stable-baselines3, so a worker starts in about a second instead of several."""
 
 class _WorkerVecEnv(_RunnerVecEnv):
     """Envs hosted by workers that answer reset/step commands (``sizes[i]`` envs each);
-    subclasses say how a command reaches them (:meth:`_exchange`). Replies are checked, never
-    trusted: a malformed one is an error."""
+    subclasses say how a command reaches them (:meth:`_exchange`, or :meth:`_send` and
+    :meth:`_receive` apart). Replies are checked, never trusted: a malformed one is an error."""
 
     sizes: list[int]
+    _sent: list[dict] | None = None
+    _replies: list[dict] = []  # noqa: RUF012 - replaced, never mutated
 
     def _exchange(self, messages: list[dict]) -> list[dict]:
+        """Each worker's message out, each one's reply back, in order."""
         raise NotImplementedError
+
+    def _send(self, messages: list[dict]) -> None:
+        """The messages out; a subclass whose workers step while the caller waits for nothing
+        overrides this and :meth:`_receive` (here the whole exchange happens at once)."""
+        self._replies = self._exchange(messages)
+
+    def _receive(self, messages: list[dict]) -> list[dict]:
+        replies, self._replies = self._replies, []
+        return replies
 
     def _obs(self, part: Any, size: int) -> Any:
         """``size`` observations from a worker, checked against the observation space: an
@@ -188,13 +200,26 @@ class _WorkerVecEnv(_RunnerVecEnv):
         return self._concat(parts)
 
     def step_wait(self):
-        actions = self._actions
+        self.send_step(self._actions)
+        return self.receive_step()
+
+    def send_step(self, actions: np.ndarray) -> None:
+        """A step's half that returns at once: the actions go out and the workers step while
+        the caller does something else; :meth:`receive_step` waits for their replies."""
         msgs, start = [], 0
         for i, size in enumerate(self.sizes):
-            part = actions[start : start + size]
+            part = np.asarray(actions)[start : start + size]
             msgs.append({"cmd": "step", "actions": part, "frames": self.want_frames and i == 0})
             start += size
-        replies = self._exchange(msgs)
+        self._send(msgs)
+        self._sent = msgs
+
+    def receive_step(self):
+        """The replies to :meth:`send_step`: ``obs, rewards, dones, infos`` as ``step``."""
+        msgs, self._sent = self._sent, None
+        if msgs is None:
+            raise RuntimeError("receive_step without send_step")
+        replies = self._receive(msgs)
         obs, rewards, dones, infos = [], [], [], []
         try:
             for reply, size in zip(replies, self.sizes, strict=True):
@@ -307,11 +332,17 @@ class SandboxedVecEnv(_WorkerVecEnv):
         self.layers = self.workers[0].layers if self.workers else {}
 
     def _exchange(self, messages: list[dict]) -> list[dict]:
+        self._send(messages)
+        return self._receive(messages)
+
+    def _send(self, messages: list[dict]) -> None:
         for worker, msg in zip(self.workers, messages, strict=True):
             try:
                 worker.send(msg)
             except SandboxCrashed as exc:
                 raise RolloutError(str(exc)) from exc
+
+    def _receive(self, messages: list[dict]) -> list[dict]:
         replies = []
         for worker, msg, size in zip(self.workers, messages, self.sizes, strict=True):
             try:

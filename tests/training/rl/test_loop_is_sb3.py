@@ -70,10 +70,10 @@ def test_ppo_drives_on_one_thread_and_updates_on_the_configured_ones(monkeypatch
     import torch
 
     from training.rl import algorithms
-    from training.rollout.lockstep import LockstepExperience
+    from training.rollout.lockstep import Evaluation, LockstepExperience
 
     seen: dict[str, list[int]] = {"gather": [], "train": [], "evaluate": []}
-    gather, evaluate = LockstepExperience.gather, LockstepExperience.evaluate
+    gather, evaluate = LockstepExperience.gather, Evaluation.send
     update = algorithms.DeepRacerPPO.train
 
     def watched(name, fn):
@@ -84,7 +84,7 @@ def test_ppo_drives_on_one_thread_and_updates_on_the_configured_ones(monkeypatch
         return call
 
     monkeypatch.setattr(LockstepExperience, "gather", watched("gather", gather))
-    monkeypatch.setattr(LockstepExperience, "evaluate", watched("evaluate", evaluate))
+    monkeypatch.setattr(Evaluation, "send", watched("evaluate", evaluate))  # each step's action
     monkeypatch.setattr(algorithms.DeepRacerPPO, "train", watched("train", update))
     before = torch.get_num_threads()
     try:
@@ -93,4 +93,6 @@ def test_ppo_drives_on_one_thread_and_updates_on_the_configured_ones(monkeypatch
                              torch_threads=2, inference_threads=1), One())  # fmt: skip
     finally:
         torch.set_num_threads(before)
-    assert seen == {"gather": [1], "train": [2], "evaluate": [1]}
+    # The evaluation runs beside the second rollout, which its end stopped (One iteration).
+    assert seen["gather"] == [1, 1] and seen["train"] == [2]
+    assert seen["evaluate"] and set(seen["evaluate"]) == {1}

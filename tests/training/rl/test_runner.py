@@ -166,3 +166,48 @@ def test_the_live_view_goes_on_while_the_policy_updates(monkeypatch):
     first_spare = phases.index("spare")
     assert set(phases[:first_spare]) == {"training"}
     assert "evaluation" in phases[first_spare:]
+
+
+def test_an_evaluation_beside_the_next_rollout_learns_and_scores_the_same(monkeypatch):
+    """PPO's evaluation runs beside the next rollout (its policy is the one that rollout
+    drives with): every iteration's steps, evaluation and weights are what evaluating first
+    gives. The hooks stop each run after 3 iterations; the third evaluation of the
+    overlapped run ended inside the fourth rollout, which is not learnt from."""
+    import dataclasses
+
+    import torch
+
+    from training.rollout.backends import LocalRollouts
+    from training.rollout.lockstep import LockstepExperience
+
+    beside_steps = []
+    advance = LockstepExperience.advance_evaluation
+
+    def counted(source, learner):
+        beside_steps[-1] += source.evaluating is not None
+        advance(source, learner)
+
+    monkeypatch.setattr(LockstepExperience, "advance_evaluation", counted)
+    runs = {}
+    for overlap in (False, True):
+        beside_steps.append(0)
+        hooks = Collect(iterations=3)
+        config = dataclasses.replace(
+            one_short_iteration(), seed=5, eval_episodes=2,
+            rollouts=LocalRollouts(num_workers=2, overlap_evaluation=overlap),
+        )  # fmt: skip
+        summary = train(config, hooks)
+        assert summary.stopped_by == "user" and summary.iterations == 3
+        runs[overlap] = hooks
+    assert beside_steps[0] == 0 and beside_steps[1] > 10  # evaluation steps during rollouts
+    before, beside = runs[False], runs[True]
+    for a, b in zip(before.results, beside.results, strict=True):
+        assert (a.iteration, a.steps, a.total_steps) == (b.iteration, b.steps, b.total_steps)
+        assert a.evaluation == b.evaluation  # progress, statuses, laps, rewards: all of it
+        assert a.train_reward == b.train_reward
+    metadata = build_metadata(action_space=DISCRETE, neural_network="RACECRAFT_LEAN_CNN")
+    for a, b in zip(before.checkpoints, beside.checkpoints, strict=True):
+        weights_a = load_checkpoint(a, metadata).policy.state_dict()
+        weights_b = load_checkpoint(b, metadata).policy.state_dict()
+        assert all(torch.equal(weights_a[k], weights_b[k]) for k in weights_a)  # bit for bit
+    assert [len(r) for r in before.rows] == [len(r) for r in beside.rows]
