@@ -15,9 +15,10 @@ after the table one line per setup sums those places over its seeds (by lap, by 
 lap): where the greedy car keeps failing on the way to the goal.
 
 ``--modes`` says how the simulation runs (``RACECRAFT_SIMULATION``): ``lockstep``, the
-console's default (the trainer steps 8 cars in 2 sandboxed workers, then updates, then
-evaluates), and ``streams`` (2 simulation workers own their episodes and stream them through
-an embedded Redis, or ``--redis-url``; they drive evaluation laps while the trainer updates).
+console's default (the trainer steps 8 cars in 2 sandboxed workers, then updates; each
+evaluation runs beside the next rollout, or after the update with ``--evaluate-after``), and
+``streams`` (2 simulation workers own their episodes and stream them through an embedded
+Redis, or ``--redis-url``; they drive evaluation laps while the trainer updates).
 
 Each setup runs ``--seeds`` seeds (0, 1, 2): the figures are medians, with the environment
 steps to the goal (the same on any machine for a seed, give or take float differences between
@@ -27,7 +28,7 @@ after) is printed with them.
 
     .venv/bin/python bench/bench_training.py [--seeds 3] [--minutes 8] [--lap-limit 10.0]
         [--first-seed 0] [--setups defaults fast] [--modes lockstep streams]
-        [--track reinvent_base]
+        [--evaluate-after] [--track reinvent_base]
         [--tracks-dir DIR] [--redis-url URL] [--device cpu|cuda|cuda:<n>]
 
 A smoke test: ``--seeds 1 --minutes 1``. reinvent_base (DeepRacer's re:Invent 2018 track) is
@@ -286,11 +287,13 @@ def track_spec(track: str, tracks_dir: Path, scratch: Path, preset: Preset) -> E
     return EnvSpec(track=track, track_dirs=dirs, action_space=preset.actions())
 
 
-def rollouts(mode: str, redis_url: str) -> LocalRollouts | StreamRollouts:
-    """What a console job gets in ``mode``: 2 sandboxed workers on this machine."""
+def rollouts(mode: str, redis_url: str, *, beside: bool = True) -> LocalRollouts | StreamRollouts:
+    """What a console job gets in ``mode``: 2 sandboxed workers on this machine; ``beside``
+    False: lockstep evaluates after the update instead of beside the next rollout (the way
+    before, to measure against)."""
     if mode == "streams":
         return StreamRollouts(redis_url=redis_url, workers=2, launch=launch_local, prefix="bench:")
-    return LocalRollouts(num_workers=2)
+    return LocalRollouts(num_workers=2, overlap_evaluation=beside)
 
 
 def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
@@ -305,7 +308,7 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
         max_minutes=args.minutes,
         reward_source=example_source(preset.reward_example),
         num_envs=8,
-        rollouts=rollouts(mode, redis_url),
+        rollouts=rollouts(mode, redis_url, beside=not args.evaluate_after),
         seed=seed,
         eval_episodes=1,
         eval_laps=EVAL_LAPS,
@@ -370,6 +373,9 @@ def main() -> None:
         default=["lockstep"],
         help="how the simulation runs; the first mode gives the main keys",
     )
+    parser.add_argument("--evaluate-after", action="store_true",
+                        help="lockstep: evaluate after the update, not beside the next rollout "
+                             "(the way before)")  # fmt: skip
     parser.add_argument("--track", default="reinvent_base")
     parser.add_argument("--tracks-dir", type=Path, default=SHARED)
     parser.add_argument("--redis-url", default="", help="streams: this Redis, not an embedded one")

@@ -97,7 +97,8 @@ def test_each_mode_trains_as_a_console_job_of_that_mode_would(bench) -> None:
     from training.rollout.backends import LocalRollouts, StreamRollouts
 
     local = bench.rollouts("lockstep", "")
-    assert local == LocalRollouts(num_workers=2)
+    assert local == LocalRollouts(num_workers=2) and local.overlap_evaluation
+    assert not bench.rollouts("lockstep", "", beside=False).overlap_evaluation  # the way before
     streams = bench.rollouts("streams", "redis://127.0.0.1:6379/15")
     assert isinstance(streams, StreamRollouts) and streams.workers == 2
     assert streams.launch is launch_local  # local processes, as RACECRAFT_SIMULATION=streams
