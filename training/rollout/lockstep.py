@@ -335,8 +335,6 @@ class LockstepExperience:
 
     def _evaluated(self, learner: Learner) -> None:
         evaluation, self.evaluating = self.evaluating, None
-        if evaluation.in_flight:  # stopped with a step out: its reply is not left in the pipe
-            evaluation.receive(learner.hooks)
         learner.evaluated(evaluation.iteration, evaluation.outcome, evaluation.busy_s)
 
     def finish(self, learner: Learner) -> None:
