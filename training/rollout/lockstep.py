@@ -84,23 +84,11 @@ class _StepWatcher(BaseCallback):
         self.source.spectator.start(self.learner, self.learner.iteration + 1)
 
 
-def _send_step(venv: VecEnv, actions: np.ndarray) -> None:
-    """A step's first half: a worker env (:meth:`~training.rollout.vecenv._WorkerVecEnv.send_step`)
-    steps while the trainer goes on; any other VecEnv steps here."""
-    if hasattr(venv, "send_step"):
-        venv.send_step(actions)
-    else:
-        venv.step_async(actions)
-
-
-def _receive_step(venv: VecEnv):
-    return venv.receive_step() if hasattr(venv, "receive_step") else venv.step_wait()
-
-
 class Evaluation:
-    """One evaluation: a deterministic episode per env of the eval env with the policy as it
-    is when it starts, a step at a time (:meth:`send`, then :meth:`receive`), so that it can
-    run beside the next rollout; ``busy_s`` is the trainer's time spent on it."""
+    """One evaluation: a deterministic episode per env of the eval env (one of
+    :mod:`training.rollout.vecenv`'s, which step in two halves) with the policy as it is when
+    it starts, a step at a time (:meth:`send`, then :meth:`receive`), so that it can run
+    beside the next rollout; ``busy_s`` is the trainer's time spent on it."""
 
     def __init__(self, venv: VecEnv, request: ExperienceRequest, iteration: int) -> None:
         self.venv, self.iteration = venv, iteration
@@ -121,7 +109,7 @@ class Evaluation:
 
     def send(self, policy) -> None:
         t0 = time.monotonic()
-        _send_step(self.venv, greedy_actions(policy, self.obs))
+        self.venv.send_step(greedy_actions(policy, self.obs))
         self.in_flight = True
         self.busy_s += time.monotonic() - t0
 
@@ -129,7 +117,7 @@ class Evaluation:
         """The step's replies; the first car's frame goes to ``hooks`` (it drives on after its
         episode while the others finish)."""
         t0 = time.monotonic()
-        self.obs, rewards, dones, infos = _receive_step(self.venv)
+        self.obs, rewards, dones, infos = self.venv.receive_step()
         self.in_flight = False
         frame = infos[0].pop("frame", None)
         if frame is not None:

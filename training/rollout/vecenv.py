@@ -81,6 +81,15 @@ class _RunnerVecEnv(VecEnv):
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions)
 
+    def send_step(self, actions: np.ndarray) -> None:
+        """A step in two halves: the actions go out now, :meth:`receive_step` returns what
+        ``step`` would. Envs in worker processes step in between, while the caller goes on;
+        here the whole step happens in :meth:`receive_step`."""
+        self.step_async(actions)
+
+    def receive_step(self):
+        return self.step_wait()
+
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
         if attr_name == "render_mode":
             return [None] * len(self._get_indices(indices))
@@ -135,20 +144,17 @@ class _WorkerVecEnv(_RunnerVecEnv):
 
     sizes: list[int]
     _sent: list[dict] | None = None
-    _replies: list[dict] = []  # noqa: RUF012 - replaced, never mutated
 
     def _exchange(self, messages: list[dict]) -> list[dict]:
         """Each worker's message out, each one's reply back, in order."""
         raise NotImplementedError
 
     def _send(self, messages: list[dict]) -> None:
-        """The messages out; a subclass whose workers step while the caller waits for nothing
-        overrides this and :meth:`_receive` (here the whole exchange happens at once)."""
-        self._replies = self._exchange(messages)
+        """The messages out, where a subclass can send them apart from :meth:`_receive`;
+        here the whole exchange happens in :meth:`_receive`."""
 
     def _receive(self, messages: list[dict]) -> list[dict]:
-        replies, self._replies = self._replies, []
-        return replies
+        return self._exchange(messages)
 
     def _obs(self, part: Any, size: int) -> Any:
         """``size`` observations from a worker, checked against the observation space: an
@@ -204,11 +210,12 @@ class _WorkerVecEnv(_RunnerVecEnv):
         return self.receive_step()
 
     def send_step(self, actions: np.ndarray) -> None:
-        """A step's half that returns at once: the actions go out and the workers step while
-        the caller does something else; :meth:`receive_step` waits for their replies."""
+        """The actions go out at once and the workers step while the caller goes on;
+        :meth:`receive_step` waits for their replies."""
+        actions = np.asarray(actions)
         msgs, start = [], 0
         for i, size in enumerate(self.sizes):
-            part = np.asarray(actions)[start : start + size]
+            part = actions[start : start + size]
             msgs.append({"cmd": "step", "actions": part, "frames": self.want_frames and i == 0})
             start += size
         self._send(msgs)
