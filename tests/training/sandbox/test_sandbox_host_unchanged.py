@@ -301,3 +301,34 @@ def test_a_refreshed_heartbeat_does_not_stretch_a_rollout_step() -> None:
     # (it was 60 s whatever the heartbeat said); generous for a loaded machine.
     assert reply_timeout("step", 1, limits) == pytest.approx(6.0)
     assert waited < 30, waited
+
+
+HANGS = """
+def reward_function(params):
+    while True:
+        pass
+"""
+
+
+@pytest.mark.slow
+def test_a_step_sent_apart_from_its_reply_is_bounded_the_same() -> None:
+    """The evaluation beside a rollout sends a step and takes the reply later
+    (``send_step``/``receive_step``): a reward that never returns neither blocks the send nor
+    stretches the wait for the reply, and its worker leaves nothing behind."""
+    limits = SandboxLimits(per_call_seconds=1.0, memory_bytes=1 << 30, start_seconds=60)
+    with host_intact():
+        env = SandboxedVecEnv(EnvSpec(track=TRACK_ID), 1, HANGS, num_workers=1,
+                              limits=limits)  # fmt: skip
+        try:
+            env.reset()
+            started = time.monotonic()
+            env.send_step(np.array([env.action_space.sample()]))
+            sent_s = time.monotonic() - started
+            with pytest.raises(RolloutError) as caught:
+                env.receive_step()
+            waited = time.monotonic() - started
+        finally:
+            env.close()
+    assert sent_s < 5, sent_s  # the send does not wait for the worker's step
+    assert "no answer within" in str(caught.value) or "took longer than" in str(caught.value)
+    assert waited < 30, waited  # reply_timeout("step", 1, limits) is 6 s; a loaded machine
