@@ -289,11 +289,12 @@ def _checkpoint_name(files: Mapping[str, bytes]) -> str:
         index = read_json(files, index_name)
         for role in ("best_checkpoint", "last_checkpoint"):
             entry = index.get(role) if isinstance(index, dict) else None
-            named = entry.get("name") if isinstance(entry, dict) else None
-            if isinstance(named, str) and named:
-                candidate = f"{folder}{named.removesuffix('.zip')}.zip"
-                if candidate in files:
-                    return candidate
+            for key in ("racecraft_checkpoint", "name"):  # the zip a DeepRacer checkpoint is of
+                named = entry.get(key) if isinstance(entry, dict) else None
+                if isinstance(named, str) and named:
+                    candidate = f"{folder}{named.removesuffix('.zip')}.zip"
+                    if candidate in files:
+                        return candidate
     for preferred in ("best.zip", "last.zip"):
         if f"{folder}{preferred}" in files:
             return f"{folder}{preferred}"

@@ -37,6 +37,11 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from torch import nn
 
 from training.interchange.carmodel import build_car_archive  # noqa: F401 - re-exported
+from training.interchange.coachexport import (
+    CoachExportError,
+    download_refusal,
+    droa_checkpoint_files,
+)
 from training.interchange.logarchive import build_logs_archive  # noqa: F401 - re-exported
 from training.interchange.tarball import (  # noqa: F401 - re-exported for callers
     ARCHIVE_MTIME,
@@ -50,7 +55,7 @@ from training.rl.checkpoints import (  # noqa: F401 - re-exported for callers
     new_model,
     read_checkpoint_tensors,
 )
-from training.rl.metadata import ModelMetadata
+from training.rl.metadata import MetadataError, ModelMetadata, parse_metadata
 from training.rl.policies import CameraLidarExtractor, split_sensors
 
 OPSET = 17
@@ -212,9 +217,15 @@ def _with_properties(onnx_bytes: bytes, metadata: ModelMetadata | None) -> bytes
 # --- archives --------------------------------------------------------------------------------
 
 
-def checkpoints_index(best: str, last: str) -> bytes:
-    """DeepRacer's ``deepracer_checkpoints.json`` naming the best and last checkpoints."""
-    data = {"best_checkpoint": {"name": best}, "last_checkpoint": {"name": last}}
+def checkpoints_index(best: str, last: str, racecraft: tuple[str, str] | None = None) -> bytes:
+    """DeepRacer's ``deepracer_checkpoints.json`` naming the best and last checkpoints, and,
+    where those are DeepRacer's, the Racecraft checkpoints (zips) they were written from."""
+    data: dict[str, dict[str, str]] = {
+        "best_checkpoint": {"name": best}, "last_checkpoint": {"name": last}
+    }  # fmt: skip
+    if racecraft is not None:
+        data["best_checkpoint"]["racecraft_checkpoint"] = racecraft[0]
+        data["last_checkpoint"]["racecraft_checkpoint"] = racecraft[1]
     return (json.dumps(data, indent=2, sort_keys=True) + "\n").encode()
 
 
@@ -228,9 +239,15 @@ def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
     ``ip/hyperparameters.json``, ``ip/training_params.yaml``, ``reward_function.py``,
     ``model/<checkpoint>.zip``, optional ``model/deepracer_checkpoints.json``,
     ``metrics/*.json``...) to bytes. Sim-traces, evaluations, videos and exports are left out.
-    Without a checkpoints index, one is written: ``best``/``last`` when those checkpoints exist,
-    else the only checkpoint for both. Raises :class:`ExportError` when a required file or the
-    checkpoint is missing.
+
+    The best checkpoint (``best``, else the only one or the last by name) is also written as
+    DeepRacer's TensorFlow checkpoint when DeepRacer's trainer can hold the model and the
+    download stays importable here (:func:`~training.interchange.coachexport.download_refusal`),
+    so DeepRacer-on-AWS's validation accepts the folder; ``deepracer_checkpoints.json`` then
+    names it as best and last, and each entry's
+    ``racecraft_checkpoint`` names the zip Racecraft imports back. Otherwise the index names
+    the zips: ``best``/``last`` when those exist, else the only checkpoint for both. Raises
+    :class:`ExportError` when a required file or the checkpoint is missing.
     """
     kept = {n: bytes(d) for n, d in files.items() if not n.startswith(VIRTUAL_MODEL_EXCLUDED)}
     missing = [name for name in VIRTUAL_MODEL_REQUIRED if name not in kept]
@@ -243,14 +260,38 @@ def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
         missing.append("model/<checkpoint>.zip")
     if missing:
         raise ExportError(f"a virtual model needs {', '.join(missing)}")
-    if CHECKPOINTS_INDEX not in kept:
-        if len(checkpoints) == 1:
-            best = last = checkpoints[0]
-        else:
-            best = "best" if "best" in checkpoints else checkpoints[-1]
-            last = "last" if "last" in checkpoints else checkpoints[-1]
+    if len(checkpoints) == 1:
+        best = last = checkpoints[0]
+    else:
+        best = "best" if "best" in checkpoints else checkpoints[-1]
+        last = "last" if "last" in checkpoints else checkpoints[-1]
+    deepracer = _deepracer_checkpoint(kept, best)
+    if deepracer is not None:
+        name, tf_files = deepracer
+        kept |= tf_files
+        kept[CHECKPOINTS_INDEX] = checkpoints_index(name, name, racecraft=(best, last))
+    elif CHECKPOINTS_INDEX not in kept:
         kept[CHECKPOINTS_INDEX] = checkpoints_index(best, last)
     for top, source in DROA_COPIES.items():
         if source in kept:
             kept[top] = kept[source]
     return deterministic_tar_gz(kept)
+
+
+def _deepracer_checkpoint(
+    files: Mapping[str, bytes], best: str
+) -> tuple[str, dict[str, bytes]] | None:
+    """DeepRacer's TensorFlow checkpoint of the ``best`` zip, or None when DeepRacer's trainer
+    cannot hold the model or the download would grow too big (:func:`download_refusal`), or
+    the zip does not load."""
+    try:
+        metadata = parse_metadata(files["model/model_metadata.json"])
+    except MetadataError:
+        return None
+    if download_refusal(metadata) is not None:
+        return None
+    zipped = files[f"model/{best}.zip"]
+    try:
+        return droa_checkpoint_files(zipped, metadata, load_checkpoint(zipped, metadata))
+    except (CheckpointError, CoachExportError):
+        return None

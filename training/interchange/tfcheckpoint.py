@@ -1,5 +1,5 @@
 """TensorFlow checkpoints (TensorBundle: ``<name>.index`` + ``<name>.data-<i>-of-<n>``) read
-without TensorFlow.
+and written without TensorFlow.
 
 The ``.index`` file is an SSTable (LevelDB's table format, as TensorFlow's ``lib/io/table``
 writes it): data blocks of prefix-compressed ``key → value`` entries, an index block pointing
@@ -9,6 +9,12 @@ size of the tensor's little-endian bytes in the data file. TensorFlow writes bun
 uncompressed; a compressed block is refused. The message class is declared here from
 TensorFlow's ``tensor_bundle.proto`` field numbers (tensorboard's protos lack that file) on top
 of tensorboard's ``TensorShapeProto``; nothing is unpickled or executed.
+
+:func:`write_checkpoint` writes one shard as TensorFlow's ``BundleWriter`` does (the bundle
+header under the empty key, entries in key order with the masked CRC-32C of each tensor's bytes,
+256 KiB data blocks with a restart every 16 entries, an index block of one restart per entry,
+an empty metaindex block, every block followed by its type byte and masked CRC-32C), so
+TensorFlow's own reader (``tf.train.load_checkpoint``, a ``Saver``'s restore) reads it.
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Iterator, Mapping
 
+import google_crc32c
 import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from tensorboard.compat.proto import tensor_shape_pb2, types_pb2
@@ -30,6 +37,12 @@ from training.interchange.graphbudget import (
 TABLE_MAGIC = 0xDB4775248B80FB57
 FOOTER_BYTES = 48
 DTYPES = {types_pb2.DT_FLOAT: np.dtype("<f4"), types_pb2.DT_INT32: np.dtype("<i4")}
+WRITTEN_DTYPES = DTYPES | {types_pb2.DT_INT64: np.dtype("<i8")}
+BLOCK_BYTES = 262_144  # TensorFlow's table::Options().block_size
+RESTART_INTERVAL = 16  # its block_restart_interval (the index block restarts at every entry)
+BUNDLE_HEADER = b"\x08\x01\x1a\x02\x08\x01"
+"""``BundleHeaderProto{num_shards: 1, endianness: LITTLE, version {producer: 1}}``, the
+header TensorFlow writes under the empty key (``LITTLE`` is 0, so proto3 leaves it out)."""
 
 
 class CheckpointFormatError(ValueError):
@@ -212,3 +225,113 @@ def read_checkpoint(index: bytes, shards: Mapping[int, bytes]) -> CheckpointTens
             raise CheckpointFormatError(f"{name}: its bytes do not fit shape {shape}")
         entries[name] = (entry, dtype, shape, count)
     return CheckpointTensors(entries, shards)
+
+
+# --- writing ---------------------------------------------------------------------------------
+
+
+def _masked_crc(data: bytes | memoryview) -> int:
+    """LevelDB's masked CRC-32C, as tables and bundle entries store it."""
+    crc = google_crc32c.value(bytes(data))
+    return (((crc >> 15) | (crc << 17)) + 0xA282EAD8) & 0xFFFFFFFF
+
+
+def _put_varint(value: int) -> bytes:
+    out = bytearray()
+    while value >= 0x80:
+        out.append((value & 0x7F) | 0x80)
+        value >>= 7
+    out.append(value)
+    return bytes(out)
+
+
+class _BlockBuilder:
+    """One table block: prefix-compressed entries, then the restart offsets and their count."""
+
+    def __init__(self, restart_interval: int) -> None:
+        self.interval = restart_interval
+        self.buffer = bytearray()
+        self.restarts = [0]
+        self.count = 0
+        self.last = b""
+
+    def add(self, key: bytes, value: bytes) -> None:
+        shared = 0
+        if self.count < self.interval:
+            limit = min(len(key), len(self.last))
+            while shared < limit and key[shared] == self.last[shared]:
+                shared += 1
+        else:
+            self.restarts.append(len(self.buffer))
+            self.count = 0
+        self.buffer += _put_varint(shared) + _put_varint(len(key) - shared)
+        self.buffer += _put_varint(len(value)) + key[shared:] + value
+        self.last = key
+        self.count += 1
+
+    def size(self) -> int:
+        return len(self.buffer) + 4 * len(self.restarts) + 4
+
+    def finish(self) -> bytes:
+        restarts = struct.pack(f"<{len(self.restarts)}I", *self.restarts)
+        return bytes(self.buffer) + restarts + struct.pack("<I", len(self.restarts))
+
+
+class _TableWriter:
+    """An SSTable of sorted keys as TensorFlow's ``table::TableBuilder`` lays it out
+    (uncompressed). An index key is the last key of its block: every key of the block sorts
+    at or before it, every key of the next block after it, which is all a lookup needs."""
+
+    def __init__(self) -> None:
+        self.out = bytearray()
+        self.index = _BlockBuilder(1)
+        self.block = _BlockBuilder(RESTART_INTERVAL)
+
+    def _write_block(self, contents: bytes) -> bytes:
+        handle = _put_varint(len(self.out)) + _put_varint(len(contents))
+        self.out += contents + b"\x00" + struct.pack("<I", _masked_crc(contents + b"\x00"))
+        return handle
+
+    def _flush(self) -> None:
+        if self.block.buffer:
+            self.index.add(self.block.last, self._write_block(self.block.finish()))
+            self.block = _BlockBuilder(RESTART_INTERVAL)
+
+    def add(self, key: bytes, value: bytes) -> None:
+        self.block.add(key, value)
+        if self.block.size() >= BLOCK_BYTES:
+            self._flush()
+
+    def finish(self) -> bytes:
+        self._flush()
+        metaindex = self._write_block(_BlockBuilder(RESTART_INTERVAL).finish())
+        index = self._write_block(self.index.finish())
+        footer = (metaindex + index).ljust(FOOTER_BYTES - 8, b"\x00")
+        return bytes(self.out) + footer + struct.pack("<Q", TABLE_MAGIC)
+
+
+def write_checkpoint(tensors: Mapping[str, np.ndarray]) -> tuple[bytes, bytes]:
+    """``(<name>.index, <name>.data-00000-of-00001)`` of a one-shard TensorFlow checkpoint
+    holding ``tensors`` (variable name → float32, int32 or int64 array; a 0-d array is a
+    scalar). Raises :class:`CheckpointFormatError` for another dtype or an empty name."""
+    data = bytearray()
+    entry_class = _entry_class()
+    codes = {dtype: code for code, dtype in WRITTEN_DTYPES.items()}
+    table = _TableWriter()
+    table.add(b"", BUNDLE_HEADER)
+    for name in sorted(tensors, key=lambda n: n.encode("utf-8")):
+        array = np.asarray(tensors[name])
+        code = codes.get(array.dtype.newbyteorder("<"))
+        if not name or code is None:
+            raise CheckpointFormatError(
+                f"cannot write {name!r} ({array.dtype}): a checkpoint here holds named "
+                "float32, int32 and int64 tensors"
+            )
+        raw = np.ascontiguousarray(array, array.dtype.newbyteorder("<")).tobytes()
+        entry = entry_class(dtype=code, offset=len(data), size=len(raw), crc32c=_masked_crc(raw))
+        entry.shape.SetInParent()  # a scalar still has a (dimensionless) shape, as TF writes
+        for size in array.shape:
+            entry.shape.dim.add(size=int(size))
+        table.add(name.encode("utf-8"), entry.SerializeToString())
+        data += raw
+    return table.finish(), bytes(data)
