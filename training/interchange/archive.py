@@ -6,8 +6,10 @@ relative names: absolute paths, ``..`` segments, backslashes, links, devices, en
 members and duplicate names are refused. One common top folder (``my-model/...``) is allowed.
 
 Required (at ``model/`` or ``ip/`` or the top level): ``model_metadata.json`` (checked by
-:mod:`training.rl.metadata`), ``hyperparameters.json`` (by :func:`parse_hyperparameters`),
-``reward_function.py`` (UTF-8, at most 140,000 characters) and a Racecraft checkpoint, an SB3
+:mod:`training.rl.metadata`; the network it names is ``racecraft_neural_network`` where the
+download wrote DeepRacer's name for DeepRacer's tools), ``hyperparameters.json`` (by
+:func:`parse_hyperparameters`), ``reward_function.py`` (UTF-8, at most 140,000 characters) and
+a Racecraft checkpoint, an SB3
 ``model/<name>.zip`` (the one ``deepracer_checkpoints.json`` names best, else last, else
 ``best.zip``/``last.zip``/the only one). The checkpoint must load for the metadata's
 algorithm, network, camera and action space (:func:`training.rl.checkpoints.load_checkpoint`;
@@ -18,6 +20,7 @@ the file.
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import io
 import json
@@ -29,9 +32,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import BinaryIO
 
+from training.interchange.carmodel import RACECRAFT_NETWORK_KEY
 from training.interchange.export import CheckpointError, checkpoint_bytes, load_checkpoint
 from training.rl.hyperparams import HyperparameterError, Hyperparameters, parse_hyperparameters
 from training.rl.metadata import MetadataError, ModelMetadata, parse_metadata
+from training.rl.policies import NETWORKS
 from training.sandbox.static import source_too_long
 
 TF_SUFFIXES = (".pb", ".ckpt", ".index", ".meta", ".coach_checkpoint")
@@ -256,6 +261,19 @@ def read_metadata(files: Mapping[str, bytes], name: str) -> ModelMetadata:
         raise ArchiveError(f"{name}: nested too deeply to read") from None
 
 
+def _racecraft_network(metadata: ModelMetadata, name: str) -> ModelMetadata:
+    """The metadata with Racecraft's own network where the file names DeepRacer's and keeps
+    Racecraft's aside (:data:`~training.interchange.carmodel.RACECRAFT_NETWORK_KEY`), as the
+    download writes it for DeepRacer's tools."""
+    own = metadata.extra.get(RACECRAFT_NETWORK_KEY)
+    if own is None:
+        return metadata
+    if own not in NETWORKS:
+        raise ArchiveError(f"{name}: {RACECRAFT_NETWORK_KEY} {own!r} is not a Racecraft network")
+    extra = {k: v for k, v in metadata.extra.items() if k != RACECRAFT_NETWORK_KEY}
+    return dataclasses.replace(metadata, neural_network=own, extra=extra)
+
+
 def _refuse_constant(name: str) -> object:
     raise ValueError(f"{name} is not allowed")
 
@@ -327,7 +345,7 @@ def import_virtual_model(
 def virtual_model(files: Mapping[str, bytes]) -> ImportedModel:
     """:func:`import_virtual_model` of an archive already read by :func:`read_archive`."""
     meta_name = _find(files, "model/model_metadata.json", "model_metadata.json")
-    metadata = read_metadata(files, meta_name)
+    metadata = _racecraft_network(read_metadata(files, meta_name), meta_name)
     hp_name = _find(files, "ip/hyperparameters.json", "hyperparameters.json")
     try:
         hyperparameters = parse_hyperparameters(

@@ -36,7 +36,10 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from torch import nn
 
-from training.interchange.carmodel import build_car_archive  # noqa: F401 - re-exported
+from training.interchange.carmodel import (  # noqa: F401 - build_car_archive re-exported
+    build_car_archive,
+    car_metadata,
+)
 from training.interchange.coachexport import (
     CoachExportError,
     download_refusal,
@@ -239,6 +242,8 @@ def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
     ``ip/hyperparameters.json``, ``ip/training_params.yaml``, ``reward_function.py``,
     ``model/<checkpoint>.zip``, optional ``model/deepracer_checkpoints.json``,
     ``metrics/*.json``...) to bytes. Sim-traces, evaluations, videos and exports are left out.
+    ``model_metadata.json`` names the network as DeepRacer's tools want it, Racecraft's own kept
+    aside (:func:`~training.interchange.carmodel.car_metadata`), as the car's download does.
 
     The best checkpoint (``best``, else the only one or the last by name) is also written as
     DeepRacer's TensorFlow checkpoint when DeepRacer's trainer can hold the model and the
@@ -265,7 +270,10 @@ def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
     else:
         best = "best" if "best" in checkpoints else checkpoints[-1]
         last = "last" if "last" in checkpoints else checkpoints[-1]
-    deepracer = _deepracer_checkpoint(kept, best)
+    metadata = _metadata(kept)
+    if metadata is not None:  # DeepRacer's network name, Racecraft's kept aside
+        kept["model/model_metadata.json"] = car_metadata(metadata)
+    deepracer = _deepracer_checkpoint(kept, metadata, best)
     if deepracer is not None:
         name, tf_files = deepracer
         kept |= tf_files
@@ -278,17 +286,20 @@ def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
     return deterministic_tar_gz(kept)
 
 
+def _metadata(files: Mapping[str, bytes]) -> ModelMetadata | None:
+    try:
+        return parse_metadata(files["model/model_metadata.json"])
+    except MetadataError:
+        return None
+
+
 def _deepracer_checkpoint(
-    files: Mapping[str, bytes], best: str
+    files: Mapping[str, bytes], metadata: ModelMetadata | None, best: str
 ) -> tuple[str, dict[str, bytes]] | None:
     """DeepRacer's TensorFlow checkpoint of the ``best`` zip, or None when DeepRacer's trainer
     cannot hold the model or the download would grow too big (:func:`download_refusal`), or
     the zip does not load."""
-    try:
-        metadata = parse_metadata(files["model/model_metadata.json"])
-    except MetadataError:
-        return None
-    if download_refusal(metadata) is not None:
+    if metadata is None or download_refusal(metadata) is not None:
         return None
     zipped = files[f"model/{best}.zip"]
     try:

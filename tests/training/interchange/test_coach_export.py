@@ -15,6 +15,7 @@ import pytest
 import torch
 
 from tests.support import tar_gz
+from training.interchange.archive import ArchiveError, import_virtual_model
 from training.interchange.checkpointimport import policy_from_checkpoint
 from training.interchange.coachexport import (
     CoachExportError,
@@ -84,6 +85,9 @@ def test_the_download_carries_the_checkpoint_deepracer_on_aws_validates() -> Non
     files = folder(metadata, model)
     files["model/last.zip"] = files["model/best.zip"]
     archive = members(build_virtual_model_archive(files))
+    described = json.loads(archive["model/model_metadata.json"])  # what the SimApp builds from
+    assert described["neural_network"] == "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"
+    assert described["racecraft_neural_network"] == AWS_SHALLOW
     name = "0_Step-0.ckpt"  # a fresh model: no update, no step
     assert archive["model/.coach_checkpoint"] == name.encode()  # no newline, as the SimApp
     index = json.loads(archive["model/deepracer_checkpoints.json"])
@@ -170,3 +174,13 @@ def test_a_checkpoint_is_named_by_its_iteration_and_steps() -> None:
     model._n_updates, model.n_epochs, model.num_timesteps = 120, 10, 9600
     assert checkpoint_name(checkpoint_bytes(model)) == "12_Step-9600.ckpt"
     assert checkpoint_name(b"not a zip") == "0_Step-0.ckpt"
+
+
+def test_a_racecraft_network_that_is_not_one_is_refused_on_import() -> None:
+    metadata = racecraft_metadata("ppo_discrete_5_actions_camera_shallow")
+    files = members(build_virtual_model_archive(folder(metadata, new_model(metadata))))
+    described = json.loads(files["model/model_metadata.json"])
+    described["racecraft_neural_network"] = "RACECRAFT_TINY_TEST_CNN"
+    files["model/model_metadata.json"] = json.dumps(described).encode()
+    with pytest.raises(ArchiveError, match="racecraft_neural_network .* is not a Racecraft"):
+        import_virtual_model(tar_gz(files))

@@ -6,6 +6,7 @@ Racecraft imports back. (Ida downloads her own model.)"""
 from __future__ import annotations
 
 import io
+import json
 import tarfile
 
 import pytest
@@ -71,7 +72,13 @@ def test_the_virtual_model_has_what_droas_import_reads(ppo_discrete) -> None:
     }
     archive = build_virtual_model_archive(files)
     assert_droa_imports(archive)
-    assert member(archive, "model_metadata.json") == files["model/model_metadata.json"]
+    # DeepRacer's network name for DeepRacer's tools (the SimApp refuses others), Racecraft's
+    # kept aside, in both copies.
+    top = json.loads(member(archive, "model_metadata.json"))
+    assert member(archive, "model/model_metadata.json") == member(archive, "model_metadata.json")
+    assert top["neural_network"] == "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"
+    assert top["racecraft_neural_network"] == "RACECRAFT_LEAN_CNN"
+    assert top["action_space"] == json.loads(files["model/model_metadata.json"])["action_space"]
     assert member(archive, "training_params.yaml") == params
     del files["ip/training_params.yaml"]  # not ours to make up here: the download adds it
     assert "training_params.yaml" not in names(build_virtual_model_archive(files))
