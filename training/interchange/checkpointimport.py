@@ -59,6 +59,12 @@ def _policy(
             convs[int(match.group(1))] = name[: -len("kernel")]
     if not convs:
         raise GraphImportError(f"no convolution under {scope}{metadata.camera}/ in the checkpoint")
+    for name in tensors:  # DeepRacer's 5-layer network: a 64→64 dense on every pixel
+        if re.fullmatch(rf"{re.escape(scope + metadata.camera)}/Dense_\d+/kernel", name):
+            raise GraphImportError(
+                f"unsupported network: {name} is a dense layer on every pixel of the last "
+                "convolution (DeepRacer's 5-layer CNN has one), which no Racecraft network has"
+            )
     kernels = [tensors[convs[i] + "kernel"] for i in sorted(convs)]
     shapes = [(int(k.shape[3]), int(k.shape[0])) for k in kernels]
     strides = next(

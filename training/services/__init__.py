@@ -38,6 +38,7 @@ from training.services.checks import (
     check_track,
     track_catalog,
 )
+from training.services.downloads import deepracer_on_aws_refusal
 from training.services.job_queue import jobs_ahead
 from training.services.jobs import (
     evaluation_start,
@@ -97,6 +98,7 @@ __all__ = [
     "check_name",
     "check_race_type",
     "check_reward",
+    "deepracer_on_aws_refusal",
     "check_track",
     "default_track_id",
     "evaluation_record_logs",

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from training.errors import ServiceError
 from training.http import Media
 from training.interchange.carmodel import CarExportError, build_car_archive
+from training.interchange.coachexport import download_refusal
 from training.interchange.export import (
     build_logs_archive,
     build_virtual_model_archive,
@@ -131,6 +132,12 @@ def virtual_model_archive(model: RacingModel) -> bytes:
     files = _collect(model, _in_virtual_model, "files")
     files.setdefault(TRAINING_PARAMS, training_params(model).encode())
     return build_virtual_model_archive(files)
+
+
+def deepracer_on_aws_refusal(model: RacingModel) -> str | None:
+    """Why DeepRacer-on-AWS's validation would refuse this model's virtual-model download (it
+    then holds no DeepRacer checkpoint), or None when the download holds one."""
+    return download_refusal(model_metadata(model))
 
 
 def logs_archive(model: RacingModel) -> bytes:

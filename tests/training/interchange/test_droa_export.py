@@ -131,3 +131,10 @@ def test_a_model_stored_without_training_params_gets_them_in_its_download(traine
     archive = virtual_model_archive(trained)
     assert_droa_imports(archive)
     assert b'WORLD_NAME: "racecraft_oval"' in member(archive, "training_params.yaml")
+
+
+def test_the_model_page_says_whether_droa_would_take_the_virtual_model(trained, ida) -> None:
+    page = ida.get(f"/models/{trained.pk}/").content.decode()
+    link = page[page.index('id="download-virtual"') :].split(">", 1)[0]
+    assert "DeepRacer-on-AWS would refuse it" in link
+    assert "DeepRacer 3-layer CNN, heads as in AWS" in link  # what to train with instead
