@@ -9,13 +9,14 @@ Required (at ``model/`` or ``ip/`` or the top level): ``model_metadata.json`` (c
 :mod:`training.rl.metadata`; the network it names is ``racecraft_neural_network`` where the
 download wrote DeepRacer's name for DeepRacer's tools), ``hyperparameters.json`` (by
 :func:`parse_hyperparameters`), ``reward_function.py`` (UTF-8, at most 140,000 characters) and
-a Racecraft checkpoint, an SB3
-``model/<name>.zip`` (the one ``deepracer_checkpoints.json`` names best, else last, else
-``best.zip``/``last.zip``/the only one). The checkpoint must load for the metadata's
-algorithm, network, camera and action space (:func:`training.rl.checkpoints.load_checkpoint`;
-nothing in it is unpickled) and is returned re-saved by Racecraft. DeepRacer's TensorFlow
-checkpoints cannot be loaded and are refused. Every failure is an :class:`ArchiveError` naming
-the file.
+a Racecraft checkpoint, an SB3 ``model/<name>.zip`` (the one ``deepracer_checkpoints.json``
+names best, else last, through ``racecraft_checkpoint`` where the name is DeepRacer's
+checkpoint, else ``best.zip``/``last.zip``/the only one). The checkpoint must load for the
+metadata's algorithm, network, camera and action space
+(:func:`training.rl.checkpoints.load_checkpoint`; nothing in it is unpickled) and is returned
+re-saved by Racecraft. DeepRacer's TensorFlow checkpoints are not read here (the DeepRacer
+import, :mod:`training.interchange.deepracer`, reads them). Every failure is an
+:class:`ArchiveError` naming the file.
 """
 
 from __future__ import annotations

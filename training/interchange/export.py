@@ -249,10 +249,10 @@ def build_virtual_model_archive(files: Mapping[str, bytes]) -> bytes:
     DeepRacer's TensorFlow checkpoint when DeepRacer's trainer can hold the model and the
     download stays importable here (:func:`~training.interchange.coachexport.download_refusal`),
     so DeepRacer-on-AWS's validation accepts the folder; ``deepracer_checkpoints.json`` then
-    names it as best and last, and each entry's
-    ``racecraft_checkpoint`` names the zip Racecraft imports back. Otherwise the index names
-    the zips: ``best``/``last`` when those exist, else the only checkpoint for both. Raises
-    :class:`ExportError` when a required file or the checkpoint is missing.
+    names it as best and last, and each entry's ``racecraft_checkpoint`` names the zip Racecraft
+    imports back. Otherwise the index names the zips: ``best``/``last`` when those exist, else
+    the only checkpoint for both. Raises :class:`ExportError` when a required file or the
+    checkpoint is missing.
     """
     kept = {n: bytes(d) for n, d in files.items() if not n.startswith(VIRTUAL_MODEL_EXCLUDED)}
     missing = [name for name in VIRTUAL_MODEL_REQUIRED if name not in kept]
