@@ -30,6 +30,7 @@ after) is printed with them.
         [--first-seed 0] [--setups defaults fast] [--modes lockstep streams]
         [--evaluate-after] [--track reinvent_base]
         [--tracks-dir DIR] [--redis-url URL] [--device cpu|cuda|cuda:<n>]
+        [--target-kl X]
 
 A smoke test: ``--seeds 1 --minutes 1``. reinvent_base (DeepRacer's re:Invent 2018 track) is
 read from ``shared/tracks`` next to the repository (never committed); any built-in track works.
@@ -49,6 +50,11 @@ train, as the console's setting of that name. The CPU is the reference, so the b
 a GPU by itself (TrainingConfig's own default, ``auto``, would); ``RACECRAFT_TORCH_DEVICE=cuda``
 measures the same runs with the trainer on the GPU (the simulators, their rewards and the
 evaluation laps stay on the CPU). The device is printed under the machine.
+
+``--target-kl X`` (an experiment; the presets and the console set none) trains with PPO's
+``target_kl`` = X: an update stops its epochs at the first minibatch whose approximate KL
+exceeds 1.5 × X. Each iteration's line then adds the epochs its update ran (an epoch stopped
+early counts), and each setup's summary the mean epochs per update up to the goal.
 """
 
 from __future__ import annotations
@@ -73,7 +79,12 @@ from console.launcher import EmbeddedRedis, Supervisor  # noqa: E402
 from training.rewards.examples import example_source  # noqa: E402
 from training.rl.algorithms import resolve_device  # noqa: E402
 from training.rl.presets import DEEPRACER_DEFAULTS, RACING, Preset  # noqa: E402
-from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, train  # noqa: E402
+from training.rl.runner import (  # noqa: E402
+    IterationResult,
+    TrainingConfig,
+    TrainingHooks,
+    TrainingLoop,
+)
 from training.rl.simulation import launch_local  # noqa: E402
 from training.rollout.backends import LocalRollouts, StreamRollouts  # noqa: E402
 from training.rollout.envs import EnvSpec  # noqa: E402
@@ -116,6 +127,10 @@ class Run:
     wall_s: float = 0.0
     exits: list[tuple[int, float]] = field(default_factory=list)
     """Where each evaluation that left the track left it: (lap, % of that lap)."""
+    epochs: int = 0
+    """PPO epochs the updates ran up to the goal (or to the end), an epoch stopped early by
+    ``target_kl`` counting; over ``updates`` (= ``iterations`` until the goal) updates."""
+    updates: int = 0
 
 
 def exit_point(progress: float, lap: int | None) -> tuple[int, float]:
@@ -149,9 +164,12 @@ class Streak:
 class UntilGoal(TrainingHooks):
     """Adds each iteration to the run and stops training at the setup's goal."""
 
-    def __init__(self, run: Run, lap_limit_s: float | None) -> None:
+    def __init__(self, run: Run, lap_limit_s: float | None, *, show_epochs: bool = False) -> None:
         self.run = run
         self.streak = Streak(lap_limit_s=lap_limit_s)
+        self.show_epochs = show_epochs
+        self.model: object | None = None
+        """The trained model (set once built): its epoch count (SB3's ``_n_updates``)."""
 
     def on_iteration(self, result: IterationResult, checkpoint: bytes, rows: list) -> None:
         run, ev = self.run, result.evaluation
@@ -159,6 +177,11 @@ class UntilGoal(TrainingHooks):
         run.rollout_s += result.rollout_s
         run.update_s += result.update_s
         run.eval_s += result.eval_s
+        # An iteration's evaluation comes in before the next update: its epochs are all counted.
+        epochs = int(getattr(self.model, "_n_updates", 0))
+        new_epochs = epochs - run.epochs
+        if run.seconds is None:
+            run.epochs, run.updates = epochs, result.iteration
         laps = [t for times in ev.lap_times for t in times]
         if laps:
             run.best_lap_s = min(laps if run.best_lap_s is None else [*laps, run.best_lap_s])
@@ -173,7 +196,8 @@ class UntilGoal(TrainingHooks):
                 shown += f" in lap {lap or '?'} at {progress:.0f}% of it"
         print(f"    it {result.iteration:3d} t={result.elapsed_s:6.1f}s "
               f"steps={result.total_steps:6d} train {result.train_progress:5.1f}%  "
-              f"eval {ev.mean_progress:5.1f}%  {shown}", flush=True)  # fmt: skip
+              f"eval {ev.mean_progress:5.1f}%  {shown}"
+              + (f"  epochs {new_epochs}" if self.show_epochs else ""), flush=True)  # fmt: skip
 
     def should_stop(self) -> bool:
         return self.run.seconds is not None
@@ -315,8 +339,16 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
         eval_from_start_line=True,
         device=args.device,
     )
+    hooks = UntilGoal(run, setup.lap_limit_s, show_epochs=args.target_kl is not None)
     start = time.monotonic()
-    train(config, UntilGoal(run, setup.lap_limit_s))
+    loop = TrainingLoop(config, hooks)  # as train() does, with the model at hand
+    if args.target_kl is not None:
+        if not hasattr(loop.model, "target_kl"):
+            loop.close()
+            raise SystemExit(f"--target-kl: {preset.algorithm} has no target_kl (PPO only)")
+        loop.model.target_kl = args.target_kl
+    hooks.model = loop.model
+    loop.run()
     run.wall_s = time.monotonic() - start
     return run
 
@@ -384,6 +416,10 @@ def main() -> None:
         default=os.environ.get("RACECRAFT_TORCH_DEVICE", "cpu"),
         help="the trainer's torch device: cpu (default, the reference), cuda, cuda:<n>",
     )
+    parser.add_argument("--target-kl", type=float, default=None,
+                        help="PPO's target_kl for the trained model (default none, as the "
+                             "presets): an update stops its epochs once the approximate KL "
+                             "exceeds 1.5 × X")  # fmt: skip
     args = parser.parse_args()
     device = resolve_device(args.device)  # a GPU asked for that this machine lacks fails here
     setups = [
@@ -427,6 +463,14 @@ def main() -> None:
                   f"to the goal ({s.reached} of {s.runs} seeds reached it; slowest "
                   f"{fmt(s.worst_s)} s), median qualifying lap {fmt(s.lap_s, 2)} s, "
                   f"best lap {fmt(s.best_lap_s, 2)} s")  # fmt: skip
+            if args.target_kl is not None:
+                mine = [r for r in runs if (r.mode, r.setup) == (mode, name)]
+                updates = sum(r.updates for r in mine)
+                print(f"{mode} {name}: target_kl {args.target_kl:g}, "
+                      f"{sum(r.epochs for r in mine) / max(updates, 1):.2f} epochs per update "
+                      f"(mean over the {updates} updates up to the goal)")  # fmt: skip
+    if args.target_kl is not None:
+        print(f"target_kl={args.target_kl:g}")
     print(f"machine after: {machine()}")
     first = modes[0]
     line = [key_values(summaries[first, "defaults"], summaries[first, "fast"])]

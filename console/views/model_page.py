@@ -51,7 +51,7 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
         "track_names": {k: r.info.name for k, r in track_names.items()},
         "sensor_labels": [SENSOR_LABELS.get(s, s) for s in model.sensors],
         "sensor_advice": services.sensor_advice(model.race_type, model.sensors),
-        "droa_refusal": services.deepracer_on_aws_refusal(model),
+        "droa_refusal": services.deepracer_on_aws_refusal(model) if model.has_checkpoint else None,
         "algorithm_label": ALGORITHM_LABELS.get(model.algorithm, model.algorithm),
         "network_label": catalog.NETWORK_LABELS.get(model.neural_network, model.neural_network),
         "hyperparameter_rows": hyperparameter_rows(model),

@@ -16,6 +16,7 @@ from training.interchange.export import (
 from training.interchange.layout import RaceKeys, evaluation_stamp
 from training.models import EvaluationJob, RaceJob, RacingModel
 from training.rl.checkpoints import CheckpointError, load_checkpoint
+from training.rl.metadata import MetadataError
 from training.services.model_files import (
     TRAINING_PARAMS,
     model_metadata,
@@ -137,7 +138,10 @@ def virtual_model_archive(model: RacingModel) -> bytes:
 def deepracer_on_aws_refusal(model: RacingModel) -> str | None:
     """Why DeepRacer-on-AWS's validation would refuse this model's virtual-model download (it
     then holds no DeepRacer checkpoint), or None when the download holds one."""
-    return download_refusal(model_metadata(model))
+    try:
+        return download_refusal(model_metadata(model))
+    except MetadataError as exc:
+        return f"its model_metadata.json cannot be written ({exc})"
 
 
 def logs_archive(model: RacingModel) -> bytes:
