@@ -296,7 +296,7 @@ def test_create_train_evaluate_export_import(store_dir, alice, files, tmp_path, 
               "--virtual", str(folder / "virtual.tar.gz"), "--logs", str(folder))  # fmt: skip
     assert out.count("Wrote the ") == 3
     expected = {
-        "oval-runner-car.tar.gz": {"model.pb", "model_metadata.json"},
+        "physicalmodel-oval-runner.tar.gz": {"model.pb", "model_metadata.json"},
         "virtual.tar.gz": {"reward_function.py"},
         "oval-runner-logs.tar.gz": set(),
     }

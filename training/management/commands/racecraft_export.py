@@ -14,9 +14,9 @@ from training.models import RacingModel
 from training.services import downloads
 
 ARCHIVES: dict[str, tuple[Callable[[RacingModel], bytes], str, str]] = {
-    "car": (downloads.car_model_archive, "{name}-car.tar.gz", "car model"),
+    "car": (downloads.car_model_archive, "physicalmodel-{name}.tar.gz", "car model"),
     "onnx": (downloads.onnx_policy, "{name}-policy.onnx", "ONNX policy"),
-    "virtual": (downloads.virtual_model_archive, "{name}-virtualmodel.tar.gz", "virtual model"),
+    "virtual": (downloads.virtual_model_archive, "virtualmodel-{name}.tar.gz", "virtual model"),
     "logs": (downloads.logs_archive, "{name}-logs.tar.gz", "logs"),
 }
 """What can be exported: the builder, the file name in a folder, and what to call it."""

@@ -69,5 +69,6 @@ class Command(BaseCommand):
             )
             self.stdout.write(
                 f"Next: manage.py racecraft_evaluate {job.model_id}, or "
-                f"manage.py racecraft_export {job.model_id} --car {job.model.name}-car.tar.gz"
+                f"manage.py racecraft_export {job.model_id} "
+                f"--car physicalmodel-{job.model.name}.tar.gz"
             )
