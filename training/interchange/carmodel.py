@@ -101,6 +101,25 @@ def _policy_parts(model: BaseAlgorithm) -> tuple[nn.Module, list[nn.Module], nn.
     return policy.pi_features_extractor, list(policy.mlp_extractor.policy_net), policy.action_net
 
 
+def conv_output_hwc(shape: tuple[int, int, int], conv: nn.Conv2d) -> tuple[int, int, int]:
+    """The (H, W, C) a VALID convolution makes of an (H, W, C) input."""
+    h, w, _ = shape
+    kernel, stride = int(conv.kernel_size[0]), int(conv.stride[0])
+    return (h - kernel) // stride + 1, (w - kernel) // stride + 1, int(conv.out_channels)
+
+
+def tf_conv_kernel(conv: nn.Conv2d) -> np.ndarray:
+    """A torch convolution's kernel (O, I, H, W) in TensorFlow's layout (H, W, I, O)."""
+    return conv.weight.detach().cpu().numpy().transpose(2, 3, 1, 0)
+
+
+def tf_flattened_kernel(kernel: np.ndarray, hwc: tuple[int, int, int]) -> np.ndarray:
+    """A dense kernel ``[out, C*H*W]`` over torch's flattened features, its rows reordered for
+    TensorFlow's H, W, C flatten of an (H, W, C) tensor: ``[out, H*W*C]``."""
+    h, w, c = hwc
+    return kernel.reshape(-1, c, h, w).transpose(0, 2, 3, 1).reshape(kernel.shape[0], -1)
+
+
 class _Emitter:
     """Writes torch layers as graph nodes, tracking the NHWC shape of the running tensor."""
 
@@ -124,12 +143,11 @@ class _Emitter:
             self.shape = (h // size, wd // size, c)
             return w.avg_pool(self._name("AvgPool"), x, size)
         if isinstance(layer, nn.Conv2d):
-            weight = layer.weight.detach().numpy()
-            stride, kernel = int(layer.stride[0]), int(layer.kernel_size[0])
-            h, wd, _ = self.shape
-            self.shape = ((h - kernel) // stride + 1, (wd - kernel) // stride + 1, weight.shape[0])
+            self.shape = conv_output_hwc(self.shape, layer)  # type: ignore[arg-type]
             bias = layer.bias.detach().numpy()
-            return w.conv2d(self._name("Conv2d"), x, weight.transpose(2, 3, 1, 0), bias, stride)
+            return w.conv2d(
+                self._name("Conv2d"), x, tf_conv_kernel(layer), bias, int(layer.stride[0])
+            )
         if isinstance(layer, nn.Flatten):
             self.flatten_hwc = self.shape  # type: ignore[assignment]
             self.shape = (int(np.prod(self.shape)),)
@@ -137,8 +155,7 @@ class _Emitter:
         if isinstance(layer, nn.Linear):
             kernel = layer.weight.detach().numpy()  # [out, in]
             if self.flatten_hwc is not None:  # torch flattened C,H,W; TensorFlow H,W,C
-                h, wd, c = self.flatten_hwc
-                kernel = kernel.reshape(-1, c, h, wd).transpose(0, 2, 3, 1).reshape(-1, h * wd * c)
+                kernel = tf_flattened_kernel(kernel, self.flatten_hwc)
                 self.flatten_hwc = None
             self.shape = (kernel.shape[0],)
             return w.dense(self._name("Dense"), x, kernel.T, layer.bias.detach().numpy())

@@ -42,7 +42,14 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from torch import nn
 
-from training.interchange.carmodel import CAMERA_HEIGHT, CAMERA_WIDTH, PPO_SCOPE
+from training.interchange.carmodel import (
+    CAMERA_HEIGHT,
+    CAMERA_WIDTH,
+    PPO_SCOPE,
+    conv_output_hwc,
+    tf_conv_kernel,
+    tf_flattened_kernel,
+)
 from training.interchange.tfcheckpoint import write_checkpoint
 from training.rl.checkpoints import checkpoint_data
 from training.rl.metadata import ModelMetadata
@@ -95,8 +102,8 @@ def download_refusal(metadata: ModelMetadata) -> str | None:
         refusal = (
             "the 5-layer network's DeepRacer checkpoint holds 230 MB (a copy of the network "
             "for the value function), which would take the download past the 200 MB that "
-            'Racecraft imports back; train with "DeepRacer 3-layer CNN, heads as in AWS" '
-            "to take a model to DeepRacer-on-AWS"
+            f'Racecraft imports back; train with "{NETWORK_LABELS[AWS_SHALLOW]}" to take a '
+            "model to DeepRacer-on-AWS"
         )
     return refusal
 
@@ -111,22 +118,21 @@ def _camera_variables(
     """A camera network's convolutions, its optional per-pixel dense layer and the middleware
     dense layer, by Coach's names under ``scope``."""
     found: dict[str, np.ndarray] = {}
-    h, w, c = CAMERA_HEIGHT, CAMERA_WIDTH, channels
+    hwc = (CAMERA_HEIGHT, CAMERA_WIDTH, channels)
     convs = [layer for layer in extractor.cnn if isinstance(layer, nn.Conv2d)]
     for i, conv in enumerate(convs):
-        kernel, stride = int(conv.kernel_size[0]), int(conv.stride[0])
-        h, w, c = (h - kernel) // stride + 1, (w - kernel) // stride + 1, conv.out_channels
-        found[f"{scope}/{camera}/Conv2d_{2 * i}/kernel"] = _numpy(conv.weight).transpose(2, 3, 1, 0)
+        hwc = conv_output_hwc(hwc, conv)
+        found[f"{scope}/{camera}/Conv2d_{2 * i}/kernel"] = tf_conv_kernel(conv).astype(np.float32)
         found[f"{scope}/{camera}/Conv2d_{2 * i}/bias"] = _numpy(conv.bias)
     if per_pixel:
+        c = hwc[2]
         if per_pixel != c:
             raise CoachExportError(f"the last convolution has {c} filters, not {per_pixel}")
         dense = f"{scope}/{camera}/Dense_{2 * len(convs)}"
         found[f"{dense}/kernel"] = np.eye(c, dtype=np.float32)
         found[f"{dense}/bias"] = np.zeros(c, np.float32)
     linear = extractor.linear[0]
-    kernel = _numpy(linear.weight)  # [out, C*H*W], torch's flatten order
-    kernel = kernel.reshape(-1, c, h, w).transpose(0, 2, 3, 1).reshape(kernel.shape[0], -1)
+    kernel = tf_flattened_kernel(_numpy(linear.weight), hwc)
     found[f"{scope}/middleware_fc_embedder/Dense_0/kernel"] = np.ascontiguousarray(kernel.T)
     found[f"{scope}/middleware_fc_embedder/Dense_0/bias"] = _numpy(linear.bias)
     found[f"{scope}/{RESCALER}"] = np.float32(1.0)
