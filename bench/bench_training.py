@@ -177,7 +177,8 @@ class UntilGoal(TrainingHooks):
         run.rollout_s += result.rollout_s
         run.update_s += result.update_s
         run.eval_s += result.eval_s
-        # An iteration's evaluation comes in before the next update: its epochs are all counted.
+        # An iteration's evaluation comes in before or during the next update: the epochs counted
+        # may include the next update's first ones (a few in a run of dozens of updates).
         epochs = int(getattr(self.model, "_n_updates", 0))
         new_epochs = epochs - run.epochs
         if run.seconds is None:

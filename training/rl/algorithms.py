@@ -18,6 +18,7 @@ hard copies, which SB3 does not offer for SAC).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -100,6 +101,14 @@ class DeepRacerPPO(PPO):
     prepare_images = True
     """Prepare the camera images once per update (:mod:`training.rl.prepared`); False runs
     SB3's own path, which gives the same numbers (bench/bench_update.py's baseline)."""
+    between_minibatches: Callable[[], bool] | None = None
+    """Called after each minibatch's step of an update; True ends the update there (the loop
+    was stopped: what it learnt is not kept). The training loop hands back an evaluation that
+    ran beside the update through it."""
+
+    def _excluded_save_params(self) -> list[str]:
+        # The hook is the loop's, not the model's: never saved with it.
+        return [*super()._excluded_save_params(), "between_minibatches"]
 
     def train(self) -> None:
         self.policy.set_training_mode(True)
@@ -161,6 +170,9 @@ class DeepRacerPPO(PPO):
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
                 self.policy.optimizer.step()
+                if self.between_minibatches is not None and self.between_minibatches():
+                    continue_training = False
+                    break
             self._n_updates += 1
             if not continue_training:
                 break

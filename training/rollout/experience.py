@@ -146,6 +146,18 @@ class ExperienceSource(Protocol):
     def evaluate(self, learner: Learner, iteration: int) -> None:
         """Have the policy as it is now (after ``iteration``'s update) evaluated."""
 
+    def poll(self, learner: Learner) -> bool:
+        """Between two minibatches of an update: hand back an evaluation that has ended
+        meanwhile, if any (True if one went back)."""
+
+    def after_update(self, learner: Learner) -> None:
+        """The update is over: hand back the evaluation that ran beside it, if any, waiting
+        for its end."""
+
+    def reserved_cores(self) -> int:
+        """Cores of this machine that the policy updates leave to the source, the same for
+        every update of a run."""
+
     def finish(self, learner: Learner) -> None:
         """The run ends: hand back the evaluations still outstanding, as far as they got."""
 

@@ -7,7 +7,9 @@ PPO's evaluation runs beside the next rollout, whose policy is the one it measur
 each training step the trainer sends the evaluation car its next action and takes the reply
 after the next training step, so the evaluation worker steps while the trainer chooses the
 training cars' actions and waits for their workers (:class:`Evaluation`). What is left of it
-at the rollout's end runs then; its outcome goes back as soon as it ends. Nothing learnt
+at the rollout's end runs beside the next update, on a thread of its own with a frozen copy
+of the policy, on a core the update leaves it (:meth:`LockstepExperience.reserved_cores`);
+its outcome goes back between two of the update's minibatches once it ends. Nothing learnt
 changes: the same steps, updates and outcomes as evaluating first (tested), in less time.
 While an evaluation runs, its car is on the live view; the training cars' frames follow.
 
@@ -77,11 +79,11 @@ class _StepWatcher(BaseCallback):
         return not learner.stop_reason()
 
     def _on_rollout_start(self) -> None:
+        self.source.take_evaluation(self.learner, wait=True)
         self.source.spectator.stop()
 
     def _on_rollout_end(self) -> None:
-        self.source.finish_evaluation(self.learner)
-        self.source.spectator.start(self.learner, self.learner.iteration + 1)
+        self.source.rollout_ended(self.learner)
 
 
 class Evaluation:
@@ -113,6 +115,17 @@ class Evaluation:
         self.in_flight = True
         self.busy_s += time.monotonic() - t0
 
+    def drive(self, policy, hooks, *, want_frames, until=None) -> None:
+        """Drive on to the end (or until ``until()`` says stop) with ``policy``;
+        ``want_frames()`` says whether the live view wants the car's frames."""
+        while not self.finished:
+            if not self.in_flight:
+                self.venv.want_frames = want_frames()
+                self.send(policy)
+            self.receive(hooks)
+            if until is not None and until():
+                break
+
     def receive(self, hooks) -> None:
         """The step's replies; the first car's frame goes to ``hooks`` (it drives on after its
         episode while the others finish)."""
@@ -136,35 +149,82 @@ class Evaluation:
 
 
 class Spectator:
-    """Keeps the live view going while the policy updates: drives the evaluation env with a
-    frozen copy of the policy that drove the rollout, at the view's pace (15 steps a second of
-    real time), from the rollout's end until the evaluation; and with the evaluated policy from
-    the evaluation's end while the iteration is stored, until the next rollout. Only for PPO
-    (SAC has no long pause to fill) and only when someone watches. Its laps are for the eyes:
-    nothing is scored or logged, and an error in one only ends it."""
+    """Drives the evaluation env while the policy updates, with a frozen copy of the policy
+    that drove the rollout (the update changes the trainer's in place), on a thread of its own.
+
+    - First, when given one, what is left of the evaluation of that policy, at full speed
+      (PPO in lockstep: the evaluation runs beside the next rollout, then beside the update).
+      The loop takes it back with :meth:`take_evaluation`, between the update's minibatches
+      or after it; an error in it is raised there.
+    - Then, only when someone watches, laps at the view's pace (15 steps a second of real
+      time) to keep the live view going, until :meth:`stop`. Only for PPO (SAC has no long
+      pause to fill). These laps are for the eyes: nothing is scored or logged, and an error
+      in one only ends them.
+    """
 
     def __init__(self, env: VecEnv, *, enabled: bool) -> None:
         self.env = env
         self.enabled = enabled
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._abort = threading.Event()
+        self._evaluation: Evaluation | None = None
+        self._evaluated = threading.Event()
+        self._error: BaseException | None = None
 
-    def start(self, learner: Learner, iteration: int) -> None:
-        """Drive with the policy as it is now, labelled ``iteration`` (the one it belongs to)."""
-        if self._thread is not None or not self.enabled or not learner.hooks.frames_wanted():
+    def start(self, learner: Learner, iteration: int, evaluation: Evaluation | None = None) -> None:
+        """Drive with the policy as it is now, labelled ``iteration`` (the one it belongs to):
+        ``evaluation`` to its end first, if given."""
+        watched = self.enabled and learner.hooks.frames_wanted()
+        if self._thread is not None or (evaluation is None and not watched):
             return
         policy = copy.deepcopy(learner.model.policy)  # the update changes the trainer's in place
         policy.set_training_mode(False)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._drive, args=(policy, learner.hooks, iteration),
-                                        name="spectator", daemon=True)  # fmt: skip
+        self._stop, self._abort, self._evaluated = (threading.Event(), threading.Event(),
+                                                    threading.Event())  # fmt: skip
+        self._evaluation, self._error = evaluation, None
+        if evaluation is None:
+            self._evaluated.set()
+        self._thread = threading.Thread(
+            target=self._run, args=(policy, learner.hooks, iteration, evaluation, watched),
+            name="spectator", daemon=True,
+        )  # fmt: skip
         self._thread.start()
 
-    def stop(self) -> None:
+    def take_evaluation(self, *, wait: bool) -> Evaluation | None:
+        """The evaluation given to :meth:`start` once it has ended (``wait``: wait for that),
+        and only once; None when there is none, or (not ``wait``) it is still driving."""
+        evaluation = self._evaluation
+        if evaluation is None or (not wait and not self._evaluated.is_set()):
+            return None
+        self._evaluated.wait()
+        self._evaluation, error, self._error = None, self._error, None
+        if error is not None:
+            raise error
+        return evaluation
+
+    def stop(self, *, abort: bool = False) -> None:
+        """End the laps; an evaluation under way is driven to its end first, unless ``abort``."""
         if self._thread is not None:
+            if abort:
+                self._abort.set()
             self._stop.set()
             self._thread.join()
             self._thread = None
+
+    def _run(self, policy, hooks, iteration: int, evaluation: Evaluation | None,
+             watched: bool) -> None:  # fmt: skip
+        if evaluation is not None:
+            try:
+                evaluation.drive(policy, hooks, want_frames=lambda: watched,
+                                 until=self._abort.is_set)  # fmt: skip
+            except BaseException as error:  # noqa: BLE001 - raised in the loop's thread
+                self._error = error
+            finally:
+                self._evaluated.set()
+            if self._error is not None or not watched:
+                return
+        self._drive(policy, hooks, iteration)
 
     def _drive(self, policy, hooks, iteration: int) -> None:
         venv, stop = self.env, self._stop
@@ -198,7 +258,8 @@ class LockstepExperience:
         self.spectator = Spectator(eval_venv, enabled=request.on_policy)
         self.overlap_evaluation = overlap_evaluation
         self.evaluating: Evaluation | None = None
-        """The evaluation under way beside the rollout (PPO), if any."""
+        """The evaluation under way beside the rollout or the update (PPO), if any."""
+        self._busy_s = 0.0  # the trainer's seconds on it before it went beside the update
         self.episode_steps: list[int] = []
         self.longest_seen = 0  # steps of the longest episode seen so far, finished or not
         self._episodes: list[tuple[float, float]] = []
@@ -280,10 +341,12 @@ class LockstepExperience:
 
     def evaluate(self, learner: Learner, iteration: int) -> None:
         """PPO: the evaluation starts now and drives a step beside each step of the next
-        rollout (its policy is the one that rollout drives with), and whatever is left of it
-        at the rollout's end is driven then; its outcome goes back when it ends. SAC (whose
-        policy changes as it drives) and ``overlap_evaluation=False``: the whole evaluation,
-        now."""
+        rollout (its policy is the one that rollout drives with); whatever is left of it at
+        the rollout's end is driven beside the next update, on the :class:`Spectator`'s
+        thread, and its outcome goes back when it ends: between two of the update's
+        minibatches (:meth:`poll`) or after the update. SAC (whose policy changes as it
+        drives) and ``overlap_evaluation=False``: the whole evaluation, now."""
+        self.take_evaluation(learner, wait=True)
         self.spectator.stop()
         self.evaluating = Evaluation(self.eval_venv, self.request, iteration)
         if self.overlap_evaluation and self.request.on_policy:
@@ -291,6 +354,41 @@ class LockstepExperience:
             return
         self.finish_evaluation(learner)
         self.spectator.start(learner, iteration)  # while the iteration is stored and logged
+
+    def rollout_ended(self, learner: Learner) -> None:
+        """The rest of the evaluation under way goes beside the update; then, for whoever
+        watches, the live view's laps."""
+        evaluation = self.evaluating
+        if evaluation is not None:
+            self._busy_s = evaluation.busy_s
+        self.spectator.start(learner, learner.iteration + 1, evaluation)
+
+    def after_update(self, learner: Learner) -> None:
+        """The update is over: the evaluation beside it goes back, once it ends."""
+        self.take_evaluation(learner, wait=True)
+
+    def poll(self, learner: Learner) -> bool:
+        """Between an update's minibatches: hand back the evaluation beside it if it has ended
+        (True)."""
+        return self.take_evaluation(learner, wait=False)
+
+    def take_evaluation(self, learner: Learner, *, wait: bool) -> bool:
+        """Hand back the evaluation driven beside the update once it has ended (``wait``: wait
+        for its end; its ``busy_s`` counts that wait). True if one went back."""
+        t0 = time.monotonic()
+        evaluation = self.spectator.take_evaluation(wait=wait)
+        if evaluation is None:
+            return False
+        evaluation.busy_s = self._busy_s + (time.monotonic() - t0)
+        self._evaluated(learner)
+        return True
+
+    def reserved_cores(self) -> int:
+        """Cores PPO's updates leave to this source: one for an evaluation beside the update
+        (its worker, and the trainer's thread that drives it). Every update of the run leaves
+        it, whether or not an evaluation runs beside that one, so that a run's arithmetic
+        does not depend on timing."""
+        return 1 if self.request.on_policy else 0
 
     def advance_evaluation(self, learner: Learner) -> None:
         """One more step of the evaluation under way, if any, while the rollout's envs step."""
@@ -308,17 +406,13 @@ class LockstepExperience:
     def finish_evaluation(self, learner: Learner, *, until_stop: bool = True) -> None:
         """Drive the evaluation under way, if any, to its end (``until_stop``: or to a stop of
         the loop) and hand back its outcome."""
-        evaluation, hooks = self.evaluating, learner.hooks
+        evaluation = self.evaluating
         if evaluation is None:
             return
-        while not evaluation.finished:
-            if not evaluation.in_flight:
-                # The live view shows the evaluation lap too: a gap only while the policy updates.
-                self.eval_venv.want_frames = hooks.frames_wanted()
-                evaluation.send(learner.model.policy)
-            evaluation.receive(hooks)
-            if until_stop and learner.stop_reason():
-                break
+        # The live view shows the evaluation lap too.
+        evaluation.drive(learner.model.policy, learner.hooks,
+                         want_frames=learner.hooks.frames_wanted,
+                         until=learner.stop_reason if until_stop else None)  # fmt: skip
         self._evaluated(learner)
 
     def _evaluated(self, learner: Learner) -> None:
@@ -326,12 +420,14 @@ class LockstepExperience:
         learner.evaluated(evaluation.iteration, evaluation.outcome, evaluation.busy_s)
 
     def finish(self, learner: Learner) -> None:
-        """The last evaluation, if the loop stopped before the rollout it ran beside ended: to
-        its end (a few seconds at most), since its iteration was learnt and is kept."""
+        """The last evaluation, if the loop stopped before the rollout or the update it ran
+        beside ended: to its end (a few seconds at most), since its iteration was learnt and
+        is kept."""
+        self.take_evaluation(learner, wait=True)
         self.finish_evaluation(learner, until_stop=False)
 
     def close(self) -> None:
-        self.spectator.stop()
+        self.spectator.stop(abort=True)
         for venv in (self.venv, self.eval_venv):
             try:
                 venv.close()

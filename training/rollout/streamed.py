@@ -175,6 +175,18 @@ class StreamedExperience:
         self.pending.append(_Pending(iteration, expected=self.request.eval_episodes))
         self._hand_back(learner)
 
+    def poll(self, learner: Learner) -> bool:
+        """Nothing to hand back during an update: evaluations come in while gathering."""
+        return False
+
+    def after_update(self, learner: Learner) -> None:
+        """Nothing ran beside the update here."""
+
+    def reserved_cores(self) -> int:
+        """None: the workers drive on through the update, as they would on machines of their
+        own."""
+        return 0
+
     def finish(self, learner: Learner) -> None:
         self._hand_back(learner, final=True)
 

@@ -12,7 +12,7 @@ from training.rl.algorithms import build_model
 from training.rl.checkpoints import load_weights
 from training.rl.hyperparams import parse_hyperparameters
 from training.rl.policies import TINY
-from training.rl.runner import TrainingConfig, TrainingHooks, train
+from training.rl.runner import TrainingConfig, TrainingHooks, train, update_threads
 from training.rollout.envs import EnvSpec
 from training.rollout.lockstep import INITIAL_EPISODE_STEPS, plan_rollout_steps
 from training.rollout.vecenv import LocalVecEnv
@@ -53,7 +53,14 @@ def test_a_lockstep_iteration_is_sb3_learn_bit_for_bit():
         model = build_model("clipped_ppo", venv, HP, network=TINY, seed=7)
         n_steps = plan_rollout_steps(2, INITIAL_EPISODE_STEPS, 2)
         model.set_rollout_steps(n_steps)
-        model.learn(total_timesteps=n_steps * 2, reset_num_timesteps=False)
+        # The loop's update leaves a core to the evaluation beside it: as many threads here
+        # (1 and 2 threads round differently; driving comes out the same on either).
+        threads = torch.get_num_threads()
+        torch.set_num_threads(update_threads(TrainingConfig(spec=SPEC).torch_threads, 1))
+        try:
+            model.learn(total_timesteps=n_steps * 2, reset_num_timesteps=False)
+        finally:
+            torch.set_num_threads(threads)
         assert result.steps == result.total_steps == model.num_timesteps == n_steps * 2
         looped = build_model("clipped_ppo", venv, HP, network=TINY, seed=0)
         load_weights(looped, hooks.checkpoints[0])
@@ -93,6 +100,8 @@ def test_ppo_drives_on_one_thread_and_updates_on_the_configured_ones(monkeypatch
                              torch_threads=2, inference_threads=1), One())  # fmt: skip
     finally:
         torch.set_num_threads(before)
-    # The evaluation runs beside the second rollout, which its end stopped (One iteration).
-    assert seen["gather"] == [1, 1] and seen["train"] == [2]
+    # The evaluation runs beside the second rollout and the second update, which its end
+    # stopped (One iteration). Every update leaves a core to an evaluation beside it: 2
+    # threads where there are 3 cores, 1 where there are 2.
+    assert seen["gather"] == [1, 1] and seen["train"] == [update_threads(2, 1)] * 2
     assert seen["evaluate"] and set(seen["evaluate"]) == {1}

@@ -153,7 +153,8 @@ def test_the_live_view_goes_on_while_the_policy_updates(monkeypatch):
     waited: list[bool] = []
 
     def train_after_a_spare_frame(self) -> None:
-        waited.append(spare_seen.wait(timeout=60))
+        if not waited:  # the second update, which the evaluation's end stops, does not wait
+            waited.append(spare_seen.wait(timeout=60))
         original_train(self)
 
     monkeypatch.setattr(algorithms.DeepRacerPPO, "train", train_after_a_spare_frame)
@@ -178,7 +179,7 @@ def test_an_evaluation_beside_the_next_rollout_learns_and_scores_the_same(monkey
     import torch
 
     from training.rollout.backends import LocalRollouts
-    from training.rollout.lockstep import LockstepExperience
+    from training.rollout.lockstep import Evaluation, LockstepExperience
 
     beside_steps = []
     advance = LockstepExperience.advance_evaluation
@@ -188,9 +189,18 @@ def test_an_evaluation_beside_the_next_rollout_learns_and_scores_the_same(monkey
         advance(source, learner)
 
     monkeypatch.setattr(LockstepExperience, "advance_evaluation", counted)
+    beside_update = []  # evaluation steps driven on the spectator's thread, during updates
+    receive = Evaluation.receive
+
+    def received(evaluation, hooks):
+        beside_update[-1] += threading.current_thread().name == "spectator"
+        receive(evaluation, hooks)
+
+    monkeypatch.setattr(Evaluation, "receive", received)
     runs = {}
     for overlap in (False, True):
         beside_steps.append(0)
+        beside_update.append(0)
         hooks = Collect(iterations=3)
         config = dataclasses.replace(
             one_short_iteration(), seed=5, eval_episodes=2,
@@ -200,6 +210,7 @@ def test_an_evaluation_beside_the_next_rollout_learns_and_scores_the_same(monkey
         assert summary.stopped_by == "user" and summary.iterations == 3
         runs[overlap] = hooks
     assert beside_steps[0] == 0 and beside_steps[1] > 10  # evaluation steps during rollouts
+    assert beside_update[0] == 0 and beside_update[1] > 10  # and during updates
     before, beside = runs[False], runs[True]
     for a, b in zip(before.results, beside.results, strict=True):
         assert (a.iteration, a.steps, a.total_steps) == (b.iteration, b.steps, b.total_steps)
@@ -211,3 +222,90 @@ def test_an_evaluation_beside_the_next_rollout_learns_and_scores_the_same(monkey
         weights_b = load_checkpoint(b, metadata).policy.state_dict()
         assert all(torch.equal(weights_a[k], weights_b[k]) for k in weights_a)  # bit for bit
     assert [len(r) for r in before.rows] == [len(r) for r in beside.rows]
+
+
+class Beside:
+    """Patches for a run whose evaluations go on beside the next update (nobody watches): each
+    update waits (60 s at most) until the evaluation handed to it has been driven to its end,
+    so that the test does not depend on how long an update takes; records the updates."""
+
+    def __init__(self, monkeypatch) -> None:
+        from training.rl import algorithms
+        from training.rollout.lockstep import LockstepExperience, Spectator
+
+        self.driven = threading.Event()
+        self.handed = False
+        self.in_update = False
+        self.waited: list[bool] = []
+        self.epochs: list[int] = []
+        run, rollout_ended = Spectator._run, LockstepExperience.rollout_ended
+        update = algorithms.DeepRacerPPO.train
+
+        def driven(spectator, *args, **kwargs):
+            run(spectator, *args, **kwargs)  # nobody watches: it ends with the evaluation
+            self.driven.set()
+
+        def ended(source, learner):
+            self.driven.clear()
+            self.handed = source.evaluating is not None
+            rollout_ended(source, learner)
+
+        def train(model):
+            if self.handed:
+                self.waited.append(self.driven.wait(timeout=60))
+            self.in_update = True
+            try:
+                update(model)
+            finally:
+                self.in_update = False
+                self.epochs.append(model._n_updates)
+
+        monkeypatch.setattr(Spectator, "_run", driven)
+        monkeypatch.setattr(LockstepExperience, "rollout_ended", ended)
+        monkeypatch.setattr(algorithms.DeepRacerPPO, "train", train)
+
+
+def test_an_evaluation_longer_than_the_rollout_goes_back_during_the_next_update(monkeypatch):
+    """What is left of an evaluation at the rollout's end is driven on the spectator's thread
+    beside the next update; its outcome goes back between two of the update's minibatches,
+    and the stop it brings ends that update there (not learnt from: the run keeps 1 iteration)."""
+    beside = Beside(monkeypatch)
+    came_in_update: list[bool] = []
+
+    class Hooks(Collect):
+        def on_iteration(self, result, checkpoint, rows) -> None:
+            came_in_update.append(beside.in_update)
+            super().on_iteration(result, checkpoint, rows)
+
+    hooks = Hooks(iterations=1)
+    config = one_short_iteration()
+    config.eval_laps = 2  # two laps from the start line: longer than the next rollout
+    summary = train(config, hooks)
+    assert beside.waited == [True]  # the second update had the evaluation beside it
+    assert came_in_update == [True]  # and its outcome came during that update
+    assert summary.iterations == 1 and summary.stopped_by == "user"
+    # The first update ran its 3 epochs; the second stopped in its first epoch.
+    assert beside.epochs[0] == 3 and beside.epochs[1] == 4
+    assert not [t for t in threading.enumerate() if t.name == "spectator"]
+
+
+def test_an_error_in_an_evaluation_beside_the_update_stops_the_run(monkeypatch):
+    """A simulation worker that fails while the evaluation runs beside the update fails the
+    run with its message, as it would in the trainer's own thread; nothing is left running."""
+    from training.rollout.lockstep import Evaluation
+    from training.rollout.vecenv import RolloutError
+
+    Beside(monkeypatch)
+    receive = Evaluation.receive
+
+    def receive_or_fail(evaluation, hooks):
+        if threading.current_thread().name == "spectator":
+            raise RolloutError("a simulation worker stopped unexpectedly")
+        receive(evaluation, hooks)
+
+    monkeypatch.setattr(Evaluation, "receive", receive_or_fail)
+    config = one_short_iteration()
+    config.eval_laps = 2
+    with pytest.raises(RolloutError, match="stopped unexpectedly"):
+        train(config, Collect(iterations=2))
+    assert not [t for t in threading.enumerate() if t.name == "spectator"]
