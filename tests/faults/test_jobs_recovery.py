@@ -122,6 +122,15 @@ def test_the_runner_keeps_the_best_so_far_unless_beaten(monkeypatch, best_score,
             learner.evaluated(iteration, EvaluationOutcome([next(scores)], ["off_track"], [[]],
                                                            [0.0]), 0.0)  # fmt: skip
 
+        def after_update(self, learner) -> None:
+            pass
+
+        def poll(self, learner) -> bool:
+            return False
+
+        def reserved_cores(self) -> int:
+            return 0
+
         def finish(self, learner) -> None:
             pass
 
