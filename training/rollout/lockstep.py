@@ -148,6 +148,16 @@ class Evaluation:
         self.busy_s += time.monotonic() - t0
 
 
+def frozen_copy(policy):
+    """A copy of ``policy`` to drive with while the update changes the trainer's in place:
+    without its optimizer (twice the weights again, never used to drive), in eval mode."""
+    optimizer = getattr(policy, "optimizer", None)
+    memo = {} if optimizer is None else {id(optimizer): None}
+    frozen = copy.deepcopy(policy, memo)
+    frozen.set_training_mode(False)
+    return frozen
+
+
 class Spectator:
     """Drives the evaluation env while the policy updates, with a frozen copy of the policy
     that drove the rollout (the update changes the trainer's in place), on a thread of its own.
@@ -178,8 +188,7 @@ class Spectator:
         watched = self.enabled and learner.hooks.frames_wanted()
         if self._thread is not None or (evaluation is None and not watched):
             return
-        policy = copy.deepcopy(learner.model.policy)  # the update changes the trainer's in place
-        policy.set_training_mode(False)
+        policy = frozen_copy(learner.model.policy)
         self._stop, self._abort, self._evaluated = (threading.Event(), threading.Event(),
                                                     threading.Event())  # fmt: skip
         self._evaluation, self._error = evaluation, None
