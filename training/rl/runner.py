@@ -272,15 +272,12 @@ class TrainingLoop:
                 self.model.between_minibatches = None
             self._threads(inference=True)
 
-    def _threads(self, *, inference: bool, spare: int = 0) -> int:
+    def _threads(self, *, inference: bool, spare: int = 0) -> None:
         """PPO's inference threads, or the update's (SAC learns while it drives: the update's),
-        leaving ``spare`` of this machine's cores to others (one thread at least); the
-        threads set."""
+        leaving ``spare`` of this machine's cores to others (one thread at least)."""
         on_policy = self.config.algorithm == "clipped_ppo"
         threads = self.config.inference_threads if inference and on_policy else None
-        threads = update_threads(threads or self.config.torch_threads, spare)
-        set_torch_threads(threads)
-        return threads
+        set_torch_threads(update_threads(threads or self.config.torch_threads, spare))
 
     def evaluated(self, iteration: int, outcome: EvaluationOutcome, wall_s: float) -> None:
         """An iteration's evaluation is in: its metrics row, checkpoint and sim-trace go out."""

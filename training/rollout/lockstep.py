@@ -79,7 +79,6 @@ class _StepWatcher(BaseCallback):
         return not learner.stop_reason()
 
     def _on_rollout_start(self) -> None:
-        self.source.take_evaluation(self.learner, wait=True)
         self.source.spectator.stop()
 
     def _on_rollout_end(self) -> None:
@@ -354,8 +353,8 @@ class LockstepExperience:
         the rollout's end is driven beside the next update, on the :class:`Spectator`'s
         thread, and its outcome goes back when it ends: between two of the update's
         minibatches (:meth:`poll`) or after the update. SAC (whose policy changes as it
-        drives) and ``overlap_evaluation=False``: the whole evaluation, now."""
-        self.take_evaluation(learner, wait=True)
+        drives) and ``overlap_evaluation=False``: the whole evaluation, now. The one beside
+        the last update went back already (:meth:`after_update`)."""
         self.spectator.stop()
         self.evaluating = Evaluation(self.eval_venv, self.request, iteration)
         if self.overlap_evaluation and self.request.on_policy:
