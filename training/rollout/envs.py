@@ -295,6 +295,10 @@ def _safe_options(options: object) -> dict:
     return {k: float(options[k]) for k in keys if isinstance(options.get(k), int | float)}
 
 
+DRIVE_INFO_KEYS = frozenset({"status", "progress", "lap", "lap_times", "frame"})
+"""What :meth:`EnvRunner.drive` keeps of a step's compact info: what an evaluation reads."""
+
+
 class EnvRunner:
     """Steps a group of envs with auto-reset, as a SB3 VecEnv worker does.
 
@@ -307,6 +311,10 @@ class EnvRunner:
         self.books = [EpisodeBook(env, phase) for env in envs]
         self.frames = FrameGrabber(envs[0])
         self.want_frames = False
+        self.obs: Any = None
+        """The observations the last reset or step returned (what :meth:`drive` goes on from)."""
+        self.finished = np.zeros(len(envs), dtype=bool)
+        """Envs whose episode has ended since the last reset (:meth:`drive` stops at all)."""
 
     def reset(self, seeds: list[int | None], options: list[dict] | None = None):
         obs = []
@@ -315,7 +323,9 @@ class EnvRunner:
             o, _ = env.reset(seed=seed, options=_safe_options(opts))
             book.reset()
             obs.append(o)
-        return stack_observations(obs)
+        self.obs = stack_observations(obs)
+        self.finished[:] = False
+        return self.obs
 
     def step(self, actions: np.ndarray) -> tuple[Any, np.ndarray, np.ndarray, list[dict]]:
         n = len(self.envs)
@@ -342,7 +352,32 @@ class EnvRunner:
             rewards[i] = reward
             dones[i] = done
             infos.append(compact)
-        return stack_observations(obs_out), rewards, dones, infos
+        self.obs = stack_observations(obs_out)
+        return self.obs, rewards, dones, infos
+
+    def drive(self, net, steps: int) -> dict:
+        """Up to ``steps`` steps with ``net``'s greedy actions (a
+        :class:`~training.rollout.numpy_policy.GreedyNet`), on from the last reset or step,
+        stopping once every env's episode has ended since the last reset: an evaluation
+        driven here. Per step, the rewards, dones and the infos an evaluation reads
+        (:data:`DRIVE_INFO_KEYS`), stacked: ``rewards`` and ``dones`` (steps × envs)."""
+        if self.obs is None:
+            raise RuntimeError("drive before reset")
+        rewards, dones, infos = [], [], []
+        for _ in range(steps):
+            if self.finished.all():
+                break
+            _obs, r, d, i = self.step(net.actions(self.obs))
+            self.finished |= d
+            rewards.append(r)
+            dones.append(d)
+            infos.append([{k: v for k, v in info.items() if k in DRIVE_INFO_KEYS} for info in i])
+        n = len(self.envs)
+        return {
+            "rewards": np.array(rewards, dtype=np.float32).reshape(-1, n),
+            "dones": np.array(dones, dtype=bool).reshape(-1, n),
+            "infos": infos,
+        }
 
     def close(self) -> None:
         for env in self.envs:

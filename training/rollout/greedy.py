@@ -35,3 +35,65 @@ def greedy_actions(policy: BasePolicy, observations) -> np.ndarray:
             features = features[0]
         logits = policy.action_net(policy.mlp_extractor.forward_actor(features))
         return torch.softmax(logits, dim=-1).argmax(dim=-1).cpu().numpy()
+
+
+def export_greedy(policy: BasePolicy) -> dict | None:
+    """``policy``'s greedy choice as a :class:`~training.rollout.numpy_policy.GreedyNet`
+    message, for a worker to drive an evaluation with; None where that network cannot say the
+    same (SAC, continuous actions, camera + LIDAR, layers it does not know): the trainer then
+    drives the evaluation itself with :func:`greedy_actions`. The weights are copies, taken
+    now: the message drives with the policy as it is at this moment."""
+    if not (isinstance(policy, ActorCriticPolicy) and isinstance(policy.action_space,
+                                                                  spaces.Discrete)):  # fmt: skip
+        return None
+    space = policy.observation_space
+    if not isinstance(space, spaces.Box) or len(space.shape) != 3:
+        return None
+    extractor = policy.pi_features_extractor  # the shared one, where they share it
+    stacks = [getattr(extractor, "cnn", None), getattr(extractor, "linear", None),
+              policy.mlp_extractor.policy_net, policy.action_net]  # fmt: skip
+    layers: list[dict] = []
+    for stack in stacks:
+        modules = list(stack) if isinstance(stack, torch.nn.Sequential) else [stack]
+        for module in modules:
+            layer = _layer(module)
+            if layer is None:
+                return None
+            layers.append(layer)
+    return {
+        "input_shape": [int(n) for n in space.shape],
+        "divisor": 255.0 if policy.normalize_images else 1.0,
+        "layers": layers,
+    }
+
+
+def _layer(module) -> dict | None:
+    """One module as a GreedyNet layer; None for one it does not run."""
+    nn = torch.nn
+
+    def weights(m) -> dict:
+        return {"weight": m.weight.detach().to("cpu", torch.float32).contiguous().numpy().copy(),
+                "bias": m.bias.detach().to("cpu", torch.float32).numpy().copy()}  # fmt: skip
+
+    if isinstance(module, nn.AvgPool2d):
+        k, s = module.kernel_size, module.stride
+        if (isinstance(k, int) and (s is None or s == k) and not module.padding
+                and not module.ceil_mode):  # fmt: skip
+            return {"op": "pool", "kernel": k}
+        return None
+    if isinstance(module, nn.Conv2d):
+        k, s = module.kernel_size, module.stride
+        plain = (module.padding in (0, (0, 0), "valid") and module.dilation == (1, 1)
+                 and module.groups == 1 and module.bias is not None)  # fmt: skip
+        if plain and k[0] == k[1] and s[0] == s[1]:
+            return {"op": "conv", "stride": int(s[0]), **weights(module)}
+        return None
+    if isinstance(module, nn.Linear):
+        return {"op": "dense", **weights(module)} if module.bias is not None else None
+    if isinstance(module, nn.ReLU):
+        return {"op": "relu"}
+    if isinstance(module, nn.Tanh):
+        return {"op": "tanh"}
+    if isinstance(module, nn.Flatten):
+        return {"op": "flatten"} if module.start_dim == 1 and module.end_dim == -1 else None
+    return None

@@ -10,6 +10,7 @@ trainer's module, and a training job starts three workers.
 from __future__ import annotations
 
 from training.rollout.envs import EnvRunner, EnvSpec
+from training.rollout.numpy_policy import GreedyNet
 
 
 def worker_prepare(args: dict) -> EnvRunner:
@@ -28,8 +29,11 @@ def worker_prepare(args: dict) -> EnvRunner:
 
 
 def worker_main(ctx) -> dict:
-    """Runs in the worker AFTER lock-down: serves reset/step commands until told to close."""
+    """Runs in the worker AFTER lock-down: serves reset/step commands until told to close, and
+    ``drive`` (an evaluation driven here, a chunk of steps at a time, by the network the first
+    chunk brings: :class:`~training.rollout.numpy_policy.GreedyNet`)."""
     runner: EnvRunner = ctx.prepared
+    net: GreedyNet | None = None
     for env in runner.envs:
         # One instance of the user's module per car, as on DeepRacer (one car per process).
         env.reward_function = ctx.new_reward() if hasattr(ctx, "new_reward") else ctx.reward
@@ -43,5 +47,12 @@ def worker_main(ctx) -> dict:
             runner.want_frames = bool(msg.get("frames"))
             obs, rewards, dones, infos = runner.step(msg["actions"])
             ctx.send({"obs": obs, "rewards": rewards, "dones": dones, "infos": infos})
+        elif msg["cmd"] == "drive":
+            if msg.get("net") is not None:
+                net = GreedyNet.from_message(msg["net"])
+            if net is None:
+                raise RuntimeError("drive without a network")
+            runner.want_frames = bool(msg.get("frames"))
+            ctx.send(runner.drive(net, int(msg["steps"])))
     runner.close()
     return {"closed": True}

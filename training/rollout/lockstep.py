@@ -42,7 +42,7 @@ from training.rollout.experience import (
     ExperienceRequest,
     Learner,
 )
-from training.rollout.greedy import greedy_actions
+from training.rollout.greedy import export_greedy, greedy_actions
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +50,9 @@ INITIAL_EPISODE_STEPS = 40.0
 """Guess of an early episode's length (steps) before any has finished."""
 MAX_SAC_CHUNKS = 200
 """An SAC iteration ends after this many chunks even if fewer episodes finished."""
+DRIVE_STEPS = 32
+"""Steps of an evaluation a worker drives per command (about 30 ms): short enough that the
+trainer takes them up soon and a stop waits little, long enough that the exchange is cheap."""
 MIN_ROLLOUT_STEPS = 16
 MAX_ROLLOUT_STEPS = 2048
 
@@ -88,15 +91,27 @@ class _StepWatcher(BaseCallback):
 class Evaluation:
     """One evaluation: a deterministic episode per env of the eval env (one of
     :mod:`training.rollout.vecenv`'s, which step in two halves) with the policy as it is when
-    it starts, a step at a time (:meth:`send`, then :meth:`receive`), so that it can run
-    beside the next rollout; ``busy_s`` is the trainer's time spent on it."""
+    it starts, so that it can run beside the next rollout; ``busy_s`` is the trainer's time
+    spent on it.
 
-    def __init__(self, venv: VecEnv, request: ExperienceRequest, iteration: int) -> None:
+    Where the policy's network can travel to the eval env's workers
+    (:func:`~training.rollout.greedy.export_greedy`: PPO's camera networks), they drive it
+    themselves, :data:`DRIVE_STEPS` steps a command, and the trainer only collects the steps
+    when they are there (:meth:`ready`): no round trip and no inference of the trainer's per
+    step. Otherwise the trainer chooses each step's action (:meth:`send`, then
+    :meth:`receive`)."""
+
+    def __init__(self, venv: VecEnv, request: ExperienceRequest, iteration: int,
+                 policy=None) -> None:  # fmt: skip
         self.venv, self.iteration = venv, iteration
         n = venv.num_envs
         if request.spread_eval_starts:
             venv.set_options([{"start_progress": p} for p in request.eval_starts()])
         t0 = time.monotonic()
+        self.net = (export_greedy(policy)
+                    if policy is not None and hasattr(venv, "send_drive") else None)  # fmt: skip
+        """The network the workers drive with (None: the trainer drives)."""
+        self._net_sent = False
         self.obs = venv.reset()
         self.done = np.zeros(n, dtype=bool)
         self.outcome = EvaluationOutcome([0.0] * n, [""] * n, [[] for _ in range(n)], [0.0] * n,
@@ -108,15 +123,30 @@ class Evaluation:
     def finished(self) -> bool:
         return bool(self.done.all())
 
+    @property
+    def driven_by_workers(self) -> bool:
+        return self.net is not None
+
     def send(self, policy) -> None:
+        """The next step (the trainer drives: ``policy``'s action) or chunk of steps (the
+        workers drive: the network goes with the first)."""
         t0 = time.monotonic()
-        self.venv.send_step(greedy_actions(policy, self.obs))
+        if self.net is not None:
+            self.venv.send_drive(None if self._net_sent else self.net, DRIVE_STEPS)
+            self._net_sent = True
+        else:
+            self.venv.send_step(greedy_actions(policy, self.obs))
         self.in_flight = True
         self.busy_s += time.monotonic() - t0
 
+    def ready(self) -> bool:
+        """Whether :meth:`receive` would not wait for the workers."""
+        return self.net is None or self.venv.drive_ready()
+
     def drive(self, policy, hooks, *, want_frames, until=None) -> None:
-        """Drive on to the end (or until ``until()`` says stop) with ``policy``;
-        ``want_frames()`` says whether the live view wants the car's frames."""
+        """Drive on to the end (or until ``until()`` says stop) with ``policy`` (not used when
+        the workers drive); ``want_frames()`` says whether the live view wants the car's
+        frames."""
         while not self.finished:
             if not self.in_flight:
                 self.venv.want_frames = want_frames()
@@ -126,11 +156,20 @@ class Evaluation:
                 break
 
     def receive(self, hooks) -> None:
-        """The step's replies; the first car's frame goes to ``hooks`` (it drives on after its
-        episode while the others finish)."""
+        """The replies of the step or steps sent; the first car's frames go to ``hooks`` (it
+        drives on after its episode while the others finish)."""
         t0 = time.monotonic()
-        self.obs, rewards, dones, infos = self.venv.receive_step()
+        if self.net is not None:
+            steps = self.venv.receive_drive()
+        else:
+            self.obs, rewards, dones, infos = self.venv.receive_step()
+            steps = [(rewards, dones, infos)]
         self.in_flight = False
+        for rewards, dones, infos in steps:
+            self._record(hooks, rewards, dones, infos)
+        self.busy_s += time.monotonic() - t0
+
+    def _record(self, hooks, rewards, dones, infos) -> None:
         frame = infos[0].pop("frame", None)
         if frame is not None:
             hooks.on_frame({**frame, "phase": "evaluation", "iteration": self.iteration})
@@ -144,7 +183,6 @@ class Evaluation:
                 outcome.statuses[i] = str(info["status"])
                 outcome.lap_times[i] = list(info.get("lap_times", []))
                 outcome.ended_in_lap[i] = int(info.get("lap", 1))
-        self.busy_s += time.monotonic() - t0
 
 
 def frozen_copy(policy):
@@ -187,7 +225,8 @@ class Spectator:
         watched = self.enabled and learner.hooks.frames_wanted()
         if self._thread is not None or (evaluation is None and not watched):
             return
-        policy = frozen_copy(learner.model.policy)
+        needed = watched or (evaluation is not None and not evaluation.driven_by_workers)
+        policy = frozen_copy(learner.model.policy) if needed else None
         self._stop, self._abort, self._evaluated = (threading.Event(), threading.Event(),
                                                     threading.Event())  # fmt: skip
         self._evaluation, self._error = evaluation, None
@@ -356,7 +395,8 @@ class LockstepExperience:
         drives) and ``overlap_evaluation=False``: the whole evaluation, now. The one beside
         the last update went back already (:meth:`after_update`)."""
         self.spectator.stop()
-        self.evaluating = Evaluation(self.eval_venv, self.request, iteration)
+        self.evaluating = Evaluation(self.eval_venv, self.request, iteration,
+                                     learner.model.policy)  # fmt: skip
         if self.overlap_evaluation and self.request.on_policy:
             self.venv.want_frames = False  # the evaluation's car is on the live view first
             return
@@ -404,6 +444,8 @@ class LockstepExperience:
         if evaluation is None:
             return
         if evaluation.in_flight:
+            if not evaluation.ready():
+                return  # the workers are still driving: the rollout goes on
             evaluation.receive(learner.hooks)
         if evaluation.finished:
             self._evaluated(learner)

@@ -18,6 +18,7 @@ from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from training.rollout.envs import EnvRunner, EnvSpec
+from training.rollout.numpy_policy import GreedyNet
 from training.sandbox import SandboxCrashed, SandboxLimits, SandboxProcess, checked
 
 ROLLOUT_LIMITS = SandboxLimits(
@@ -35,13 +36,13 @@ RESET_SLACK_S = 30.0
 """What a reset may take beyond loading and calling the reward (placing objects, a slow start)."""
 
 
-def reply_timeout(cmd: str, size: int, limits: SandboxLimits) -> float:
+def reply_timeout(cmd: str, size: int, limits: SandboxLimits, steps: int = 1) -> float:
     """Seconds a worker hosting ``size`` envs has to answer ``cmd``, on the trainer's clock:
-    one reward call per env and step, each within ``limits.per_call_seconds`` (a reset may
-    also load the user's module once per env), plus slack for the simulator. The child's own
-    heartbeat cannot stretch it."""
-    calls = size * (2 if cmd == "reset" else 1)
-    slack = RESET_SLACK_S if cmd == "reset" else STEP_SLACK_S
+    one reward call per env and step (``steps`` of them for ``drive``), each within
+    ``limits.per_call_seconds`` (a reset may also load the user's module once per env), plus
+    slack for the simulator. The child's own heartbeat cannot stretch it."""
+    calls = size * (2 if cmd == "reset" else steps if cmd == "drive" else 1)
+    slack = RESET_SLACK_S if cmd == "reset" else STEP_SLACK_S * (steps if cmd == "drive" else 1)
     return calls * limits.per_call_seconds + slack
 
 
@@ -51,6 +52,8 @@ INFO_KEYS = frozenset(
      "terminal_observation", "episode_entry"}
 )  # fmt: skip
 MAX_FRAME_BYTES = 4 << 20
+MAX_DRIVE_STEPS = 256
+"""Steps one ``drive`` command may ask of a worker (its reply holds one record per step)."""
 
 
 def first_envs(sizes: list[int]) -> list[int]:
@@ -90,6 +93,25 @@ class _RunnerVecEnv(VecEnv):
     def receive_step(self):
         return self.step_wait()
 
+    def send_drive(self, net: dict | None, steps: int) -> None:
+        """An evaluation driven by the envs' own side, ``steps`` steps at most: each env drives
+        with ``net`` (a :class:`~training.rollout.numpy_policy.GreedyNet` message; None: the
+        last one sent) from where the last reset or step left it, until every env's episode
+        has ended since the reset. :meth:`receive_drive` returns the steps;
+        :meth:`drive_ready` says whether that would not wait."""
+        if not 0 < steps <= MAX_DRIVE_STEPS:
+            raise ValueError(f"steps must be 1 to {MAX_DRIVE_STEPS}")
+        self._drive = (net, steps)
+
+    def drive_ready(self) -> bool:
+        return True
+
+    def receive_drive(self) -> list[tuple[np.ndarray, np.ndarray, list[dict]]]:
+        """The steps of the :meth:`send_drive` under way: ``(rewards, dones, infos)`` per step
+        for every env, as ``step`` returns them (without observations). An env whose worker
+        stopped early (all its envs had ended) reads 0, not done and an empty info."""
+        raise NotImplementedError
+
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
         if attr_name == "render_mode":
             return [None] * len(self._get_indices(indices))
@@ -125,6 +147,17 @@ class LocalVecEnv(_RunnerVecEnv):
         self.runner.want_frames = self.want_frames
         obs, rewards, dones, infos = self.runner.step(self._actions)
         return obs, rewards, dones, infos
+
+    def send_drive(self, net: dict | None, steps: int) -> None:
+        super().send_drive(net, steps)
+        if net is not None:
+            self._net = GreedyNet.from_message(net)
+
+    def receive_drive(self) -> list[tuple[np.ndarray, np.ndarray, list[dict]]]:
+        (_net, steps), self._drive = self._drive, None
+        self.runner.want_frames = self.want_frames
+        part = self.runner.drive(self._net, steps)
+        return list(zip(part["rewards"], part["dones"], part["infos"], strict=True))
 
     def close(self) -> None:
         self.runner.close()
@@ -242,6 +275,55 @@ class _WorkerVecEnv(_RunnerVecEnv):
             raise RolloutError(f"a simulation worker sent malformed data ({exc})") from None
         return self._concat(obs), np.concatenate(rewards), np.concatenate(dones), infos
 
+    def send_drive(self, net: dict | None, steps: int) -> None:
+        super().send_drive(net, steps)
+        msgs = [
+            {"cmd": "drive", "net": net, "steps": steps, "frames": self.want_frames and i == 0}
+            for i in range(len(self.sizes))
+        ]
+        self._send(msgs)
+        self._sent = msgs
+
+    def receive_drive(self) -> list[tuple[np.ndarray, np.ndarray, list[dict]]]:
+        msgs, self._sent = self._sent, None
+        if msgs is None or msgs[0].get("cmd") != "drive":
+            raise RuntimeError("receive_drive without send_drive")
+        steps = msgs[0]["steps"]
+        replies = self._receive(msgs)
+        parts = []
+        try:
+            for reply, size in zip(replies, self.sizes, strict=True):
+                reply = checked.mapping(reply, "drive reply")
+                infos = reply.get("infos")
+                if not isinstance(infos, list) or len(infos) > steps:
+                    raise checked.Malformed(f"drive infos: expected at most {steps} steps")
+                k = len(infos)
+                rewards = checked.array(reply.get("rewards"), "rewards", dtype=np.float32,
+                                        shape=(k, size))  # fmt: skip
+                checked.rewards(rewards.reshape(-1), "rewards", size=k * size)
+                dones = checked.array(reply.get("dones"), "dones", dtype=bool, shape=(k, size))
+                for step in infos:
+                    if not isinstance(step, list) or len(step) != size:
+                        raise checked.Malformed("infos: expected one per env")
+                parts.append((rewards, dones,
+                              [[self._info(item) for item in step] for step in infos]))  # fmt: skip
+        except checked.Malformed as exc:
+            raise RolloutError(f"a simulation worker sent malformed data ({exc})") from None
+        out = []
+        for t in range(max((len(p[2]) for p in parts), default=0)):
+            rewards, dones, infos = [], [], []
+            for (r, d, i), size in zip(parts, self.sizes, strict=True):
+                if t < len(i):
+                    rewards.append(r[t])
+                    dones.append(d[t])
+                    infos.extend(i[t])
+                else:  # this worker's envs had all ended
+                    rewards.append(np.zeros(size, np.float32))
+                    dones.append(np.zeros(size, bool))
+                    infos.extend({} for _ in range(size))
+            out.append((np.concatenate(rewards), np.concatenate(dones), infos))
+        return out
+
     def _info(self, item: Any) -> dict:
         """One env's compact info (:func:`training.rollout.envs.compact_info`), checked."""
         info = checked.mapping(item, "info")
@@ -349,11 +431,15 @@ class SandboxedVecEnv(_WorkerVecEnv):
             except SandboxCrashed as exc:
                 raise RolloutError(str(exc)) from exc
 
+    def drive_ready(self) -> bool:
+        return all(worker.ready() for worker in self.workers)
+
     def _receive(self, messages: list[dict]) -> list[dict]:
         replies = []
         for worker, msg, size in zip(self.workers, messages, self.sizes, strict=True):
+            timeout = reply_timeout(msg["cmd"], size, worker.limits, msg.get("steps", 1))
             try:
-                reply = worker.recv(timeout=reply_timeout(msg["cmd"], size, worker.limits))
+                reply = worker.recv(timeout=timeout)
             except SandboxCrashed as exc:
                 raise RolloutError(str(exc)) from exc
             if reply.kind != "message" or not isinstance(reply.value, dict):

@@ -307,6 +307,10 @@ class SandboxProcess:
         """The user's words for a call that overran: "<what> took longer than N s per call"."""
         return f"{what} took longer than {self.limits.per_call_seconds:g} s per call"
 
+    def ready(self) -> bool:
+        """Whether :meth:`recv` would answer at once (a message, or the child's end)."""
+        return self._finished or self._reader.ready()
+
     def recv(self, timeout: float | None = None, *, late: str | None = None) -> SandboxMessage:
         """Next message from the child; raises on errors, death or ``timeout`` seconds (then
         the child is killed and ``late``, if given, is the reason the user reads)."""

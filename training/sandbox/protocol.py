@@ -220,6 +220,22 @@ class FrameReader:
         del self.buf[: 4 + n]
         return body
 
+    def ready(self) -> bool:
+        """Whether :meth:`read` would return (or raise) at once: a whole frame, one over the
+        limit, or the pipe's end is there. Reads what the pipe holds, never waits."""
+        while True:
+            if len(self.buf) >= 4:
+                (n,) = _U32.unpack_from(self.buf, 0)
+                if n > self.max_bytes or len(self.buf) >= 4 + n:
+                    return True
+            try:
+                chunk = os.read(self.fd, 1 << 20)
+            except BlockingIOError:
+                return False
+            if not chunk:
+                return True  # the end: read() raises EOFError
+            self.buf += chunk
+
     def read(self, timeout: float | None) -> Any:
         """Next message. Raises TimeoutError at the deadline, EOFError when the pipe closed."""
         deadline = None if timeout is None else time.monotonic() + timeout
