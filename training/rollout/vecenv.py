@@ -32,6 +32,9 @@ ROLLOUT_LIMITS = SandboxLimits(
 
 STEP_SLACK_S = 5.0
 """What a step of a worker's envs may take beyond its reward calls (physics, cameras)."""
+DRIVE_STEP_SLACK_S = 0.25
+"""What each step of each env of a ``drive`` command may take beyond its reward call (the
+simulator and the policy's forward pass take about a millisecond)."""
 RESET_SLACK_S = 30.0
 """What a reset may take beyond loading and calling the reward (placing objects, a slow start)."""
 
@@ -42,7 +45,9 @@ def reply_timeout(cmd: str, size: int, limits: SandboxLimits, steps: int = 1) ->
     ``limits.per_call_seconds`` (a reset may also load the user's module once per env), plus
     slack for the simulator. The child's own heartbeat cannot stretch it."""
     calls = size * (2 if cmd == "reset" else steps if cmd == "drive" else 1)
-    slack = RESET_SLACK_S if cmd == "reset" else STEP_SLACK_S * (steps if cmd == "drive" else 1)
+    slack = RESET_SLACK_S if cmd == "reset" else STEP_SLACK_S
+    if cmd == "drive":
+        slack += steps * size * DRIVE_STEP_SLACK_S
     return calls * limits.per_call_seconds + slack
 
 

@@ -136,6 +136,48 @@ def test_forged_rollout_steps_are_malformed_data(reply: object) -> None:
         env.step_wait()
 
 
+def _drive(steps: int = 3, **changes: object) -> dict:
+    """A worker's reply to ``drive``: ``steps`` steps of its two envs."""
+    reply = {
+        "rewards": np.ones((steps, 2), np.float32),
+        "dones": np.zeros((steps, 2), bool),
+        "infos": [[dict(GOOD_INFO), dict(GOOD_INFO)] for _ in range(steps)],
+    }
+    reply.update(changes)
+    return reply
+
+
+FORGED_DRIVES = {
+    "more_steps_than_asked": _drive(5),
+    "rewards_shape": _drive(rewards=np.ones((2, 2), np.float32)),
+    "rewards_flat": _drive(rewards=np.ones(6, np.float32)),
+    "rewards_nan": _drive(rewards=np.full((3, 2), np.nan, np.float32)),
+    "rewards_huge": _drive(rewards=np.full((3, 2), 1e9, np.float32)),
+    "dones_int": _drive(dones=np.zeros((3, 2), np.int64)),
+    "infos_not_a_list": _drive(infos={"a": 1}),
+    "a_step_short_of_envs": _drive(infos=[[GOOD_INFO, GOOD_INFO], [GOOD_INFO], [GOOD_INFO] * 2]),
+    "info_extra_key": _drive(infos=[[GOOD_INFO, dict(GOOD_INFO, evil=1)]] * 3),
+    "not_a_dict": [1, 2],
+}
+
+
+def test_a_good_drive_passes() -> None:
+    env = FakeWorkers([_drive(2)])
+    env.send_drive(None, 4)
+    steps = env.receive_drive()
+    assert len(steps) == 2 and steps[0][0].tolist() == [1.0, 1.0] and len(steps[0][2]) == 2
+
+
+@pytest.mark.parametrize("reply", FORGED_DRIVES.values(), ids=list(FORGED_DRIVES))
+def test_forged_drive_replies_are_malformed_data(reply: object) -> None:
+    """What a worker says it drove (an evaluation driven in the worker) is checked as a
+    step's reply is, and it may not say it drove more steps than it was asked for."""
+    env = FakeWorkers([reply])
+    env.send_drive(None, 4 if reply is FORGED_DRIVES["more_steps_than_asked"] else 3)
+    with pytest.raises(RolloutError, match="sent malformed data"):
+        env.receive_drive()
+
+
 @pytest.mark.parametrize(
     "reply", [{"obs": np.zeros((2, 4, 4, 1), np.int8)}, {}, "obs"], ids=["dtype", "empty", "text"]
 )
