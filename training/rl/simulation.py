@@ -35,7 +35,8 @@ from gymnasium import spaces
 from training.rl.algorithms import build_model, set_torch_threads
 from training.rl.hyperparams import Hyperparameters
 from training.rollout.envs import EnvSpec
-from training.rollout.greedy import greedy_actions
+from training.rollout.greedy import export_greedy, greedy_actions
+from training.rollout.lockstep import DRIVE_STEPS
 from training.rollout.streams import CHUNK_STEPS, HEARTBEAT_S, Session, chunk_message
 from training.rollout.vecenv import SandboxedVecEnv
 from training.sandbox import RewardFunctionError, SandboxError
@@ -201,15 +202,26 @@ class SimulationWorker:
             env.set_options([{"start_progress": start_progress}])
         started = time.monotonic()
         obs = env.reset()
-        total = 0.0
+        # A scored lap is driven in the env's worker, its network sent with the lap's first
+        # chunk (as training.rollout.lockstep.Evaluation does); a spare lap for the live view,
+        # and a network that cannot travel, step by step with the policy here.
+        net = export_greedy(self.policy) if ticket is not None else None
+        first, total = True, 0.0
         while not self.beat.stop.is_set():
             env.want_frames = self.beat.watched
-            actions = greedy_actions(self.policy, obs)
-            obs, rewards, dones, infos = env.step(actions)
-            info = infos[0]
-            self._frame(info, "evaluation")
-            total += float(rewards[0])
-            if dones[0]:
+            if net is not None:
+                env.send_drive(net if first else None, DRIVE_STEPS)
+                steps = env.receive_drive()
+            else:
+                obs, rewards, dones, infos = env.step(greedy_actions(self.policy, obs))
+                steps = [(rewards, dones, infos)]
+            first = False
+            for rewards, dones, infos in steps:
+                info = infos[0]
+                self._frame(info, "evaluation")
+                total += float(rewards[0])
+                if not dones[0]:
+                    continue
                 if ticket is not None:
                     self.session.send({
                         "kind": "eval", "ticket": ticket, "version": self.version,

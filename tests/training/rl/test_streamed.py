@@ -199,6 +199,56 @@ def test_a_streamed_episode_is_on_policy_in_the_trainers_buffer(redis_url, setti
         session.close()
 
 
+def test_a_scored_evaluation_lap_is_driven_in_the_env_worker(redis_url, settings, monkeypatch):
+    """A simulation worker's scored lap goes to its env's sandboxed worker with the network
+    (chunks of steps; the network only with the first) and reports what the lap driven step by
+    step with torch reports."""
+    import dataclasses
+    import uuid
+
+    from training.rl import simulation
+    from training.rl.hyperparams import Hyperparameters
+    from training.rl.simulation import SimulationWorker
+    from training.rollout.streams import Session
+
+    spec = EnvSpec(track="racecraft_oval", action_space=DISCRETE)
+    from_the_line = EnvSpec.from_json({**spec.to_json(), "start": "start_line",
+                                       "alternate_direction": False})  # fmt: skip
+    session = Session(redis_url, settings.REDIS_PREFIX, uuid.uuid4().hex)
+    session.create()
+    session.r.set(session.keys.trainer, 1, ex=60)
+    worker = SimulationWorker(session, "w0", spec=spec, eval_spec=from_the_line,
+                              reward_source=REWARD,
+                              algorithm="clipped_ppo", network="RACECRAFT_TINY_TEST_CNN",
+                              hyperparameters=dataclasses.asdict(Hyperparameters()),
+                              seed=4)  # fmt: skip
+    drives: list[bool] = []
+    send_drive = type(worker.eval_env).send_drive
+
+    def sent(env, net, steps):
+        drives.append(net is not None)
+        send_drive(env, net, steps)
+
+    monkeypatch.setattr(type(worker.eval_env), "send_drive", sent)
+    try:
+        worker.version = 0
+        worker.beat.start()
+        assert worker.evaluation_lap(None, "e:0")
+        assert drives and drives[0] and not any(drives[1:])
+        chunks = len(drives)
+        monkeypatch.setattr(simulation, "export_greedy", lambda policy: None)
+        assert worker.evaluation_lap(None, "e:1")  # torch, a step at a time
+        assert len(drives) == chunks
+        laps = [m for _, m in session.read("t", 1000) if m.get("kind") == "eval"]
+        assert [m["ticket"] for m in laps] == ["e:0", "e:1"]
+        keys = ("progress", "status", "reward", "lap_times")
+        assert [laps[0][k] for k in keys] == [laps[1][k] for k in keys]
+    finally:
+        worker.close()
+        session.cleanup()
+        session.close()
+
+
 def _chunk(ticket: str, attempt: str, seq: int, *, version: int = 0, last: bool = True) -> dict:
     from training.rollout.streams import chunk_message
 
