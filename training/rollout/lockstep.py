@@ -3,13 +3,16 @@ this machine, or its own process for a trusted reward), as DeepRacer's rollout w
 with the trainer waiting; then the loop updates; then one deterministic episode per env of an
 evaluation env of its own measures the new policy.
 
-PPO's evaluation runs beside the next rollout, whose policy is the one it measures: after
-each training step the trainer sends the evaluation car its next action and takes the reply
-after the next training step, so the evaluation worker steps while the trainer chooses the
-training cars' actions and waits for their workers (:class:`Evaluation`). What is left of it
-at the rollout's end runs beside the next update, on a thread of its own with a frozen copy
-of the policy, on a core the update leaves it (:meth:`LockstepExperience.reserved_cores`);
-its outcome goes back between two of the update's minibatches once it ends. Nothing learnt
+PPO's evaluation runs beside the next rollout, whose policy is the one it measures
+(:class:`Evaluation`). For the camera networks its worker drives it: the network goes there
+once, in NumPy, and the worker drives a chunk of steps a command, which the trainer takes up
+between two training steps whenever they are there. For the others the trainer sends the
+evaluation car its next action after each training step and takes the reply after the next,
+so the evaluation worker steps while the trainer chooses the training cars' actions and waits
+for their workers. What is left of it at the rollout's end runs beside the next update, on a
+thread of its own (with a frozen copy of the policy, where the trainer drives), on a core the
+update leaves it (:meth:`LockstepExperience.reserved_cores`); its outcome goes back between
+two of the update's minibatches once it ends. Nothing learnt
 changes: the same steps, updates and outcomes as evaluating first (tested), in less time.
 While an evaluation runs, its car is on the live view; the training cars' frames follow.
 
