@@ -36,9 +36,8 @@ from training.rl.algorithms import build_model, set_torch_threads
 from training.rl.hyperparams import Hyperparameters
 from training.rollout.envs import EnvSpec
 from training.rollout.greedy import export_greedy, greedy_actions
-from training.rollout.lockstep import DRIVE_STEPS
 from training.rollout.streams import CHUNK_STEPS, HEARTBEAT_S, Session, chunk_message
-from training.rollout.vecenv import SandboxedVecEnv
+from training.rollout.vecenv import DRIVE_STEPS, SandboxedVecEnv
 from training.sandbox import RewardFunctionError, SandboxError
 
 log = logging.getLogger(__name__)

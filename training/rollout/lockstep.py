@@ -46,6 +46,7 @@ from training.rollout.experience import (
     Learner,
 )
 from training.rollout.greedy import export_greedy, greedy_actions
+from training.rollout.vecenv import DRIVE_STEPS
 
 log = logging.getLogger(__name__)
 
@@ -53,9 +54,6 @@ INITIAL_EPISODE_STEPS = 40.0
 """Guess of an early episode's length (steps) before any has finished."""
 MAX_SAC_CHUNKS = 200
 """An SAC iteration ends after this many chunks even if fewer episodes finished."""
-DRIVE_STEPS = 32
-"""Steps of an evaluation a worker drives per command (about 30 ms): short enough that the
-trainer takes them up soon and a stop waits little, long enough that the exchange is cheap."""
 MIN_ROLLOUT_STEPS = 16
 MAX_ROLLOUT_STEPS = 2048
 
@@ -111,10 +109,10 @@ class Evaluation:
         if request.spread_eval_starts:
             venv.set_options([{"start_progress": p} for p in request.eval_starts()])
         t0 = time.monotonic()
-        self.net = (export_greedy(policy)
-                    if policy is not None and hasattr(venv, "send_drive") else None)  # fmt: skip
-        """The network the workers drive with (None: the trainer drives)."""
-        self._net_sent = False
+        self._net = (export_greedy(policy)
+                     if policy is not None and hasattr(venv, "send_drive") else None)  # fmt: skip
+        """The network for the workers to drive with, until it goes with the first chunk."""
+        self.driven_by_workers = self._net is not None
         self.obs = venv.reset()
         self.done = np.zeros(n, dtype=bool)
         self.outcome = EvaluationOutcome([0.0] * n, [""] * n, [[] for _ in range(n)], [0.0] * n,
@@ -126,17 +124,13 @@ class Evaluation:
     def finished(self) -> bool:
         return bool(self.done.all())
 
-    @property
-    def driven_by_workers(self) -> bool:
-        return self.net is not None
-
     def send(self, policy) -> None:
         """The next step (the trainer drives: ``policy``'s action) or chunk of steps (the
         workers drive: the network goes with the first)."""
         t0 = time.monotonic()
-        if self.net is not None:
-            self.venv.send_drive(None if self._net_sent else self.net, DRIVE_STEPS)
-            self._net_sent = True
+        if self.driven_by_workers:
+            self.venv.send_drive(self._net, DRIVE_STEPS)
+            self._net = None  # the workers keep it
         else:
             self.venv.send_step(greedy_actions(policy, self.obs))
         self.in_flight = True
@@ -144,7 +138,7 @@ class Evaluation:
 
     def ready(self) -> bool:
         """Whether :meth:`receive` would not wait for the workers."""
-        return self.net is None or self.venv.drive_ready()
+        return not self.driven_by_workers or self.venv.drive_ready()
 
     def drive(self, policy, hooks, *, want_frames, until=None) -> None:
         """Drive on to the end (or until ``until()`` says stop) with ``policy`` (not used when
@@ -162,7 +156,7 @@ class Evaluation:
         """The replies of the step or steps sent; the first car's frames go to ``hooks`` (it
         drives on after its episode while the others finish)."""
         t0 = time.monotonic()
-        if self.net is not None:
+        if self.driven_by_workers:
             steps = self.venv.receive_drive()
         else:
             self.obs, rewards, dones, infos = self.venv.receive_step()

@@ -57,6 +57,9 @@ INFO_KEYS = frozenset(
      "terminal_observation", "episode_entry"}
 )  # fmt: skip
 MAX_FRAME_BYTES = 4 << 20
+DRIVE_STEPS = 32
+"""Steps of an evaluation a worker drives per command (about 30 ms): short enough that the
+trainer takes them up soon and a stop waits little, long enough that the exchange is cheap."""
 MAX_DRIVE_STEPS = 256
 """Steps one ``drive`` command may ask of a worker (its reply holds one record per step)."""
 
@@ -106,7 +109,6 @@ class _RunnerVecEnv(VecEnv):
         :meth:`drive_ready` says whether that would not wait."""
         if not 0 < steps <= MAX_DRIVE_STEPS:
             raise ValueError(f"steps must be 1 to {MAX_DRIVE_STEPS}")
-        self._drive = (net, steps)
 
     def drive_ready(self) -> bool:
         return True
@@ -157,11 +159,11 @@ class LocalVecEnv(_RunnerVecEnv):
         super().send_drive(net, steps)
         if net is not None:
             self._net = GreedyNet.from_message(net)
+        self._drive_steps = steps
 
     def receive_drive(self) -> list[tuple[np.ndarray, np.ndarray, list[dict]]]:
-        (_net, steps), self._drive = self._drive, None
         self.runner.want_frames = self.want_frames
-        part = self.runner.drive(self._net, steps)
+        part = self.runner.drive(self._net, self._drive_steps)
         return list(zip(part["rewards"], part["dones"], part["infos"], strict=True))
 
     def close(self) -> None:
