@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import socket
 
-from celery import shared_task
+from celery import current_app, shared_task
 from celery.signals import worker_init, worker_process_init, worker_ready
 from django.db import close_old_connections
 
 from training import dispatch, services, store
+from training.rl.algorithms import warm_up
 from training.services.analysis import replay_run
 from training.services.background import car_export_run, model_import_run, uploads_prune
 from training.services.rewards import reward_validation_run
@@ -28,6 +29,9 @@ from training.worker.common import SIMULATE_EPISODES, simulate_here
 from training.worker.evaluation import run_evaluation_job
 from training.worker.race import run_race_job
 from training.worker.training import run_training_job
+
+JOB_QUEUES = frozenset({"training", "evaluation", "simulation"})
+"""The queues of workers whose processes build models (console/celery.py names them)."""
 
 _JOB_TASK = {"bind": True, "acks_late": True, "reject_on_worker_lost": True}
 
@@ -101,6 +105,16 @@ def _patient_store(**kwargs) -> None:
     """Workers retry the object store for long (a checkpoint outlives a store outage); the
     web server gives up quickly and says so."""
     store.use_worker_retries()
+
+
+@worker_process_init.connect
+def _warm_up_job_process(**kwargs) -> None:
+    """A process of a worker that runs jobs (training, evaluation, simulation) loads what its
+    first job's model would wait for (:func:`training.rl.algorithms.warm_up`); the others
+    (the reaper, users' validations) never build one."""
+    consumed = set(current_app.amqp.queues.consume_from or ())
+    if consumed & JOB_QUEUES:
+        warm_up()
 
 
 @worker_ready.connect
