@@ -30,8 +30,9 @@ from training.worker.evaluation import run_evaluation_job
 from training.worker.race import run_race_job
 from training.worker.training import run_training_job
 
-JOB_QUEUES = frozenset({"training", "evaluation", "simulation"})
-"""The queues of workers whose processes build models (console/celery.py names them)."""
+MODEL_QUEUES = frozenset({*dispatch.JOB_QUEUES, "simulation"})
+"""The queues of workers whose processes build models: the job queues and the simulation
+workers' (console/celery.py names them)."""
 
 _JOB_TASK = {"bind": True, "acks_late": True, "reject_on_worker_lost": True}
 
@@ -113,7 +114,7 @@ def _warm_up_job_process(**kwargs) -> None:
     first job's model would wait for (:func:`training.rl.algorithms.warm_up`); the others
     (the reaper, users' validations) never build one."""
     consumed = set(current_app.amqp.queues.consume_from or ())
-    if consumed & JOB_QUEUES:
+    if consumed & MODEL_QUEUES:
         warm_up()
 
 
