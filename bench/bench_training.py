@@ -28,9 +28,9 @@ after) is printed with them.
 
     .venv/bin/python bench/bench_training.py [--seeds 3] [--minutes 8] [--lap-limit 10.0]
         [--first-seed 0] [--setups defaults fast] [--modes lockstep streams]
-        [--evaluate-after] [--track reinvent_base]
+        [--evaluate-after] [--trainer-samples] [--track reinvent_base]
         [--tracks-dir DIR] [--redis-url URL] [--device cpu|cuda|cuda:<n>]
-        [--target-kl X]
+        [--target-kl X] [--set KEY=VALUE ...]
 
 A smoke test: ``--seeds 1 --minutes 1``. reinvent_base (DeepRacer's re:Invent 2018 track) is
 read from ``shared/tracks`` next to the repository (never committed); any built-in track works.
@@ -51,6 +51,14 @@ a GPU by itself (TrainingConfig's own default, ``auto``, would); ``RACECRAFT_TOR
 measures the same runs with the trainer on the GPU (the simulators, their rewards and the
 evaluation laps stay on the CPU). The device is printed under the machine.
 
+``--trainer-samples`` runs lockstep's rollouts the way before: the trainer chooses every
+step's actions (SB3's ``collect_rollouts``) instead of the workers drawing them
+(``LocalRollouts(sample_in_workers=False)``); the same seed then takes other steps.
+
+``--set KEY=VALUE`` (an experiment, repeatable) trains the setups with these of DeepRacer's
+hyperparameters changed (``--set lr=0.001 --set num_epochs=5``), checked as a
+``hyperparameters.json`` is; the table's heading prints them.
+
 ``--target-kl X`` (an experiment; the presets and the console set none) trains with PPO's
 ``target_kl`` = X: an update stops its epochs at the first minibatch whose approximate KL
 exceeds 1.5 × X. Each iteration's line then adds the epochs its update ran (an epoch stopped
@@ -66,7 +74,7 @@ import shutil
 import statistics
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
@@ -78,6 +86,11 @@ import torch  # noqa: E402
 from console.launcher import EmbeddedRedis, Supervisor  # noqa: E402
 from training.rewards.examples import example_source  # noqa: E402
 from training.rl.algorithms import resolve_device  # noqa: E402
+from training.rl.hyperparams import (  # noqa: E402
+    HyperparameterError,
+    Hyperparameters,
+    parse_hyperparameters,
+)
 from training.rl.presets import DEEPRACER_DEFAULTS, RACING, Preset  # noqa: E402
 from training.rl.runner import (  # noqa: E402
     IterationResult,
@@ -312,13 +325,38 @@ def track_spec(track: str, tracks_dir: Path, scratch: Path, preset: Preset) -> E
     return EnvSpec(track=track, track_dirs=dirs, action_space=preset.actions())
 
 
-def rollouts(mode: str, redis_url: str, *, beside: bool = True) -> LocalRollouts | StreamRollouts:
+def rollouts(mode: str, redis_url: str, *, beside: bool = True,
+             sample: bool = True) -> LocalRollouts | StreamRollouts:  # fmt: skip
     """What a console job gets in ``mode``: 2 sandboxed workers on this machine; ``beside``
     False: lockstep evaluates after the update instead of beside the next rollout (the way
     before, to measure against)."""
     if mode == "streams":
         return StreamRollouts(redis_url=redis_url, workers=2, launch=launch_local, prefix="bench:")
-    return LocalRollouts(num_workers=2, overlap_evaluation=beside)
+    return LocalRollouts(num_workers=2, overlap_evaluation=beside, sample_in_workers=sample)
+
+
+def parse_overrides(pairs: list[str]) -> dict[str, str]:
+    """``--set KEY=VALUE`` pairs as a dict; a malformed pair or an unknown key stops the bench."""
+    known = {f.name for f in fields(Hyperparameters)}
+    out: dict[str, str] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or key.strip() not in known:
+            names = ", ".join(sorted(known))
+            raise SystemExit(f"--set {pair!r}: use KEY=VALUE with KEY one of {names}")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def overridden(preset: Preset, overrides: dict[str, str]) -> Hyperparameters:
+    """The preset's hyperparameters with ``overrides``, validated as a hyperparameters.json."""
+    if not overrides:
+        return preset.hyperparameters
+    data = {**asdict(preset.hyperparameters), **overrides}
+    try:
+        return parse_hyperparameters(data, preset.algorithm)
+    except HyperparameterError as error:
+        raise SystemExit(f"--set: {error}") from None
 
 
 def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
@@ -329,11 +367,13 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
         spec=track_spec(args.track, args.tracks_dir, scratch, preset),
         algorithm=preset.algorithm,
         network=preset.network,
-        hyperparameters=preset.hyperparameters,
+        hyperparameters=overridden(preset, args.overrides),
         max_minutes=args.minutes,
         reward_source=example_source(preset.reward_example),
         num_envs=8,
-        rollouts=rollouts(mode, redis_url, beside=not args.evaluate_after),
+        rollouts=rollouts(
+            mode, redis_url, beside=not args.evaluate_after, sample=not args.trainer_samples
+        ),
         seed=seed,
         eval_episodes=1,
         eval_laps=EVAL_LAPS,
@@ -421,7 +461,14 @@ def main() -> None:
                         help="PPO's target_kl for the trained model (default none, as the "
                              "presets): an update stops its epochs once the approximate KL "
                              "exceeds 1.5 × X")  # fmt: skip
+    parser.add_argument("--trainer-samples", action="store_true",
+                        help="lockstep: the trainer chooses every step's actions (SB3's "
+                             "collect_rollouts, the way before), not the workers")  # fmt: skip
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="an experiment: train with this hyperparameter changed "
+                             "(repeatable; DeepRacer's names, e.g. lr=0.001)")  # fmt: skip
     args = parser.parse_args()
+    args.overrides = parse_overrides(args.set)
     device = resolve_device(args.device)  # a GPU asked for that this machine lacks fails here
     setups = [
         Setup("defaults", DEEPRACER_DEFAULTS, None),
@@ -430,6 +477,9 @@ def main() -> None:
     modes = list(dict.fromkeys(args.modes))
     print(f"machine: {machine()}", flush=True)
     print(f"trainer device: {device_label(device)}", flush=True)
+    if args.overrides:
+        print("hyperparameters changed: "
+              + ", ".join(f"{k}={v}" for k, v in args.overrides.items()), flush=True)  # fmt: skip
     runs: list[Run] = []
     with tempfile.TemporaryDirectory() as tmp, Supervisor() as sup:
         redis_url = args.redis_url

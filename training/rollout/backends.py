@@ -47,10 +47,13 @@ def make_envs(spec: EnvSpec, num_envs: int, *, reward_source: str | None,
 class LocalRollouts:
     """Lockstep: ``num_workers`` sandboxed processes on this machine drive the training cars,
     one more drives the evaluation episodes (PPO: beside the next rollout, unless
-    ``overlap_evaluation`` is False; see :class:`LockstepExperience`)."""
+    ``overlap_evaluation`` is False; see :class:`LockstepExperience`). PPO's camera networks
+    drive the training cars in the workers, the actions drawn there, unless
+    ``sample_in_workers`` is False (the trainer chooses every step's actions, SB3's way)."""
 
     num_workers: int = 2
     overlap_evaluation: bool = True
+    sample_in_workers: bool = True
 
     def experience(self, request: ExperienceRequest) -> ExperienceSource:
         kwargs = {"reward_source": request.reward_source,
@@ -63,7 +66,8 @@ class LocalRollouts:
             venv.close()
             raise
         return LockstepExperience(request, venv, eval_venv,
-                                  overlap_evaluation=self.overlap_evaluation)  # fmt: skip
+                                  overlap_evaluation=self.overlap_evaluation,
+                                  sample_in_workers=self.sample_in_workers)  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -379,6 +379,41 @@ class EnvRunner:
             "infos": infos,
         }
 
+    def sample(self, net, steps: int, rng: np.random.Generator) -> dict:
+        """``steps`` training steps of every env, each action drawn from ``net``'s
+        probabilities with ``rng`` (:meth:`GreedyNet.sample
+        <training.rollout.numpy_policy.GreedyNet.sample>`), on from the last reset or step,
+        ending episodes resetting as :meth:`step` does: a PPO rollout driven here. Stacked
+        per step: ``obs`` (each step's observations before its action), ``actions``,
+        ``rewards``, ``dones`` and ``infos`` (as :meth:`step` gives them; a terminal
+        observation only where the time limit cut the episode), and ``next_obs``, the
+        observations after the last step."""
+        if self.obs is None:
+            raise RuntimeError("sample before reset")
+        if not isinstance(self.obs, np.ndarray):
+            raise RuntimeError("sample drives camera observations only")
+        obs, actions, rewards, dones, infos = [], [], [], [], []
+        for _ in range(steps):
+            chosen = net.sample(self.obs, rng)
+            obs.append(self.obs)
+            actions.append(chosen)
+            _next, r, d, i = self.step(chosen)
+            for info in i:
+                if not info.get("TimeLimit.truncated", False):
+                    info.pop("terminal_observation", None)
+            rewards.append(r)
+            dones.append(d)
+            infos.append(i)
+        n = len(self.envs)
+        return {
+            "obs": np.stack(obs),
+            "actions": np.array(actions, dtype=np.int64).reshape(-1, n),
+            "rewards": np.array(rewards, dtype=np.float32).reshape(-1, n),
+            "dones": np.array(dones, dtype=bool).reshape(-1, n),
+            "infos": infos,
+            "next_obs": self.obs,
+        }
+
     def close(self) -> None:
         for env in self.envs:
             env.close()

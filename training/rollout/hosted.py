@@ -9,6 +9,8 @@ trainer's module, and a training job starts three workers.
 
 from __future__ import annotations
 
+import numpy as np
+
 from training.rollout.envs import EnvRunner, EnvSpec
 from training.rollout.numpy_policy import GreedyNet
 
@@ -31,9 +33,12 @@ def worker_prepare(args: dict) -> EnvRunner:
 def worker_main(ctx) -> dict:
     """Runs in the worker AFTER lock-down: serves reset/step commands until told to close, and
     ``drive`` (an evaluation driven here, a chunk of steps at a time, by the network the first
-    chunk brings: :class:`~training.rollout.numpy_policy.GreedyNet`)."""
+    chunk brings: :class:`~training.rollout.numpy_policy.GreedyNet`) and ``sample`` (a PPO
+    rollout driven here, the actions drawn from the network the first chunk of each rollout
+    brings, with a generator the first chunk of the run seeds)."""
     runner: EnvRunner = ctx.prepared
     net: GreedyNet | None = None
+    rng = np.random.default_rng()
     for env in runner.envs:
         # One instance of the user's module per car, as on DeepRacer (one car per process).
         env.reward_function = ctx.new_reward() if hasattr(ctx, "new_reward") else ctx.reward
@@ -54,5 +59,14 @@ def worker_main(ctx) -> dict:
                 raise RuntimeError("drive without a network")
             runner.want_frames = bool(msg.get("frames"))
             ctx.send(runner.drive(net, int(msg["steps"])))
+        elif msg["cmd"] == "sample":
+            if msg.get("net") is not None:
+                net = GreedyNet.from_message(msg["net"])
+            if net is None:
+                raise RuntimeError("sample without a network")
+            if msg.get("seed") is not None:
+                rng = np.random.default_rng([int(n) for n in msg["seed"]])
+            runner.want_frames = bool(msg.get("frames"))
+            ctx.send(runner.sample(net, int(msg["steps"]), rng))
     runner.close()
     return {"closed": True}

@@ -164,6 +164,16 @@ class GreedyNet:
             raise NetError("the network must end in a vector of action logits")
         return x
 
+    def sample(self, observations: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """An action of each observation drawn from the softmax of its logits (a training
+        car's choice, as SB3's categorical distribution draws it), with ``rng``."""
+        logits = self.logits(observations).astype(np.float64)
+        shifted = np.exp(logits - logits.max(axis=1, keepdims=True))
+        cumulative = np.cumsum(shifted, axis=1)
+        draws = rng.random(len(logits)) * cumulative[:, -1]
+        chosen = (cumulative <= draws[:, None]).sum(axis=1)
+        return np.minimum(chosen, logits.shape[1] - 1)
+
     def actions(self, observations: np.ndarray) -> np.ndarray:
         """The greedy action of each observation: argmax of the softmax (the first where two
         probabilities are equal)."""

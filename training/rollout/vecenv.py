@@ -10,8 +10,9 @@ reward function (a common DeepRacer idiom) stays per car, as on DeepRacer.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from gymnasium import spaces
@@ -41,12 +42,13 @@ RESET_SLACK_S = 30.0
 
 def reply_timeout(cmd: str, size: int, limits: SandboxLimits, steps: int = 1) -> float:
     """Seconds a worker hosting ``size`` envs has to answer ``cmd``, on the trainer's clock:
-    one reward call per env and step (``steps`` of them for ``drive``), each within
+    one reward call per env and step (``steps`` of them for ``drive`` and ``sample``), each within
     ``limits.per_call_seconds`` (a reset may also load the user's module once per env), plus
     slack for the simulator. The child's own heartbeat cannot stretch it."""
-    calls = size * (2 if cmd == "reset" else steps if cmd == "drive" else 1)
+    chunked = cmd in ("drive", "sample")
+    calls = size * (2 if cmd == "reset" else steps if chunked else 1)
     slack = RESET_SLACK_S if cmd == "reset" else STEP_SLACK_S
-    if cmd == "drive":
+    if chunked:
         slack += steps * size * DRIVE_STEP_SLACK_S
     return calls * limits.per_call_seconds + slack
 
@@ -68,6 +70,20 @@ def first_envs(sizes: list[int]) -> list[int]:
     """The index of each worker's first env in the run (workers host ``sizes[i]`` envs):
     with :meth:`EnvSpec.for_env`, what tells a worker which tracks its envs drive."""
     return [sum(sizes[:i]) for i in range(len(sizes))]
+
+
+class SampledSteps(NamedTuple):
+    """A chunk of a rollout that the envs' side drove (:meth:`_RunnerVecEnv.receive_sample`),
+    for ``steps`` steps of ``n`` envs: ``obs`` (steps, n, ...) each step's observations before
+    its action, ``actions``, ``rewards`` and ``dones`` (steps, n), ``infos`` (steps lists of
+    n), ``next_obs`` (n, ...) the observations after the last step."""
+
+    obs: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    dones: np.ndarray
+    infos: list[list[dict]]
+    next_obs: np.ndarray
 
 
 class RolloutError(RuntimeError):
@@ -119,6 +135,28 @@ class _RunnerVecEnv(VecEnv):
         stopped early (all its envs had ended) reads 0, not done and an empty info."""
         raise NotImplementedError
 
+    def send_sample(self, net: dict | None, steps: int, seed: int | None = None) -> None:
+        """A PPO rollout driven by the envs' own side, ``steps`` steps of every env: each
+        draws its actions from ``net``'s probabilities (a
+        :class:`~training.rollout.numpy_policy.GreedyNet` message; None: the last one sent)
+        with a generator of its side's, which ``seed`` (given: the run's first chunk) seeds
+        anew. :meth:`receive_sample` returns the steps; a second command may go before the
+        first one's steps are received (the envs' side drives them one after the other)."""
+        if not 0 < steps <= MAX_DRIVE_STEPS:
+            raise ValueError(f"steps must be 1 to {MAX_DRIVE_STEPS}")
+
+    def sample_ready(self) -> bool:
+        return True
+
+    def filenos(self) -> list[int]:
+        """Descriptors that become readable when a worker's reply arrives (none here: the
+        envs step in :meth:`receive_sample` or :meth:`receive_drive` themselves)."""
+        return []
+
+    def receive_sample(self) -> SampledSteps:
+        """The steps of the :meth:`send_sample` under way."""
+        raise NotImplementedError
+
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
         if attr_name == "render_mode":
             return [None] * len(self._get_indices(indices))
@@ -166,6 +204,21 @@ class LocalVecEnv(_RunnerVecEnv):
         part = self.runner.drive(self._net, self._drive_steps)
         return list(zip(part["rewards"], part["dones"], part["infos"], strict=True))
 
+    def send_sample(self, net: dict | None, steps: int, seed: int | None = None) -> None:
+        super().send_sample(net, steps, seed)
+        if net is not None:
+            self._net = GreedyNet.from_message(net)
+        if seed is not None:
+            self._rng = np.random.default_rng([seed, 0])
+        self._sample_steps = getattr(self, "_sample_steps", deque())
+        self._sample_steps.append(steps)
+
+    def receive_sample(self) -> SampledSteps:
+        self.runner.want_frames = self.want_frames
+        part = self.runner.sample(self._net, self._sample_steps.popleft(), self._rng)
+        return SampledSteps(part["obs"], part["actions"], part["rewards"], part["dones"],
+                            part["infos"], part["next_obs"])  # fmt: skip
+
     def close(self) -> None:
         self.runner.close()
 
@@ -184,6 +237,15 @@ class _WorkerVecEnv(_RunnerVecEnv):
 
     sizes: list[int]
     _sent: list[dict] | None = None
+
+    @property
+    def _samples_sent(self) -> deque[list[dict]]:
+        """The ``sample`` commands sent and not yet received, oldest first (a worker queues
+        the next while it drives one)."""
+        queue = self.__dict__.get("_sample_queue")
+        if queue is None:
+            queue = self.__dict__["_sample_queue"] = deque()
+        return queue
 
     def _exchange(self, messages: list[dict]) -> list[dict]:
         """Each worker's message out, each one's reply back, in order."""
@@ -331,6 +393,65 @@ class _WorkerVecEnv(_RunnerVecEnv):
             out.append((np.concatenate(rewards), np.concatenate(dones), infos))
         return out
 
+    def send_sample(self, net: dict | None, steps: int, seed: int | None = None) -> None:
+        super().send_sample(net, steps, seed)
+        msgs = [
+            {"cmd": "sample", "net": net, "steps": steps, "frames": self.want_frames and i == 0,
+             "seed": None if seed is None else [seed, first]}
+            for i, first in enumerate(first_envs(self.sizes))
+        ]  # fmt: skip
+        self._send(msgs)
+        self._samples_sent.append(msgs)
+
+    def sample_ready(self) -> bool:
+        return self.drive_ready()
+
+    def receive_sample(self) -> SampledSteps:
+        """The replies to the oldest :meth:`send_sample` not yet received, checked: every
+        worker's ``steps`` steps, each action one of the action space's."""
+        if not self._samples_sent:
+            raise RuntimeError("receive_sample without send_sample")
+        msgs = self._samples_sent.popleft()
+        k = msgs[0]["steps"]
+        replies = self._receive(msgs)
+        obs, actions, rewards, dones, infos, last = [], [], [], [], [[] for _ in range(k)], []
+        try:
+            for reply, size in zip(replies, self.sizes, strict=True):
+                reply = checked.mapping(reply, "sample reply")
+                obs.append(self._obs(self._flat(reply.get("obs"), k, size), k * size)
+                           .reshape(k, size, *self.observation_space.shape))  # fmt: skip
+                last.append(self._obs(reply.get("next_obs"), size))
+                chosen = checked.array(reply.get("actions"), "actions", dtype=np.int64,
+                                       shape=(k, size))  # fmt: skip
+                if chosen.size and (chosen.min() < 0 or chosen.max() >= self.action_space.n):
+                    raise checked.Malformed("actions: not in the action space")
+                actions.append(chosen)
+                part = checked.array(reply.get("rewards"), "rewards", dtype=np.float32,
+                                     shape=(k, size))  # fmt: skip
+                checked.rewards(part.reshape(-1), "rewards", size=k * size)
+                rewards.append(part)
+                dones.append(checked.array(reply.get("dones"), "dones", dtype=bool,
+                                           shape=(k, size)))  # fmt: skip
+                steps = reply.get("infos")
+                if not isinstance(steps, list) or len(steps) != k:
+                    raise checked.Malformed(f"sample infos: expected {k} steps")
+                for t, step in enumerate(steps):
+                    if not isinstance(step, list) or len(step) != size:
+                        raise checked.Malformed("infos: expected one per env")
+                    infos[t].extend(self._info(item) for item in step)
+        except checked.Malformed as exc:
+            raise RolloutError(f"a simulation worker sent malformed data ({exc})") from None
+        return SampledSteps(np.concatenate(obs, axis=1), np.concatenate(actions, axis=1),
+                            np.concatenate(rewards, axis=1), np.concatenate(dones, axis=1),
+                            infos, np.concatenate(last))  # fmt: skip
+
+    @staticmethod
+    def _flat(part: Any, steps: int, size: int) -> Any:
+        """A (steps, size, ...) array as (steps × size, ...) for :meth:`_obs`'s check."""
+        if isinstance(part, np.ndarray) and part.ndim >= 2 and part.shape[:2] == (steps, size):
+            return part.reshape(steps * size, *part.shape[2:])
+        raise checked.Malformed("observations: expected one per step and env")
+
     def _info(self, item: Any) -> dict:
         """One env's compact info (:func:`training.rollout.envs.compact_info`), checked."""
         info = checked.mapping(item, "info")
@@ -440,6 +561,9 @@ class SandboxedVecEnv(_WorkerVecEnv):
 
     def drive_ready(self) -> bool:
         return all(worker.ready() for worker in self.workers)
+
+    def filenos(self) -> list[int]:
+        return [worker.fileno() for worker in self.workers]
 
     def _receive(self, messages: list[dict]) -> list[dict]:
         replies = []

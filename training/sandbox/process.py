@@ -307,6 +307,11 @@ class SandboxProcess:
         """The user's words for a call that overran: "<what> took longer than N s per call"."""
         return f"{what} took longer than {self.limits.per_call_seconds:g} s per call"
 
+    def fileno(self) -> int:
+        """The pipe the child's messages come through (for ``select``; :meth:`ready` first,
+        since a message may already be read into the buffer)."""
+        return self._from_child
+
     def ready(self) -> bool:
         """Whether :meth:`recv` would answer at once (a message, or the child's end)."""
         return self._finished or self._reader.ready()

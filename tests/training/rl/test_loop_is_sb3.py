@@ -1,7 +1,10 @@
 """The one training loop's lockstep iteration is stable-baselines3's own ``learn()``, bit for
-bit: the experience source's ``collect_rollouts`` and the loop's ``train`` are the two halves of
-it, so a seed's steps and weights are what they were when the loop called ``learn()``. Trusted
-in-process reward and the tiny test network: no sandbox, a second or two."""
+bit, where the trainer chooses the actions (``sample_in_workers=False``, and every policy that
+cannot travel to the workers): the experience source's ``collect_rollouts`` and the loop's
+``train`` are the two halves of it, so a seed's steps and weights are what they were when the
+loop called ``learn()``. (Where the workers draw the actions, the buffer they fill is held to
+``collect_rollouts``'s in tests/training/rollout/test_sampled_rollout.py.) Trusted in-process
+reward and the tiny test network: no sandbox, a second or two."""
 
 from __future__ import annotations
 
@@ -13,6 +16,7 @@ from training.rl.checkpoints import load_weights
 from training.rl.hyperparams import parse_hyperparameters
 from training.rl.policies import TINY
 from training.rl.runner import TrainingConfig, TrainingHooks, train, update_threads
+from training.rollout.backends import LocalRollouts
 from training.rollout.envs import EnvSpec
 from training.rollout.lockstep import INITIAL_EPISODE_STEPS, plan_rollout_steps
 from training.rollout.vecenv import LocalVecEnv
@@ -43,7 +47,8 @@ class One(TrainingHooks):
 def test_a_lockstep_iteration_is_sb3_learn_bit_for_bit():
     hooks = One()
     train(TrainingConfig(spec=SPEC, network=TINY, hyperparameters=HP, reward_function=reward,
-                         num_envs=2, eval_episodes=1, seed=7, device="cpu"), hooks)  # fmt: skip
+                         num_envs=2, eval_episodes=1, seed=7, device="cpu",
+                         rollouts=LocalRollouts(sample_in_workers=False)), hooks)  # fmt: skip
     [result] = hooks.results
     assert result.evaluation.ended_in_lap == [1]  # one 1-lap evaluation: it ended in lap 1
 

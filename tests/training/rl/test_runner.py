@@ -241,8 +241,9 @@ class Beside:
     """Patches for a run whose evaluations go on beside the next update (nobody watches): each
     update waits (60 s at most) until the evaluation handed to it has been driven to its end,
     so that the test does not depend on how long an update takes; records the updates. The
-    evaluation's envs drive one step a command, so that it outlasts the rollout beside it
-    here, as it does a fast rollout on a loaded machine."""
+    evaluation's envs drive one step a command, and the trainer takes one up only after each
+    chunk of a sampled rollout (not while it waits for the chunk), so that it outlasts the
+    rollout beside it here, as it does a fast rollout on a loaded machine."""
 
     def __init__(self, monkeypatch) -> None:
         from training.rl import algorithms
@@ -250,6 +251,7 @@ class Beside:
         from training.rollout.lockstep import LockstepExperience, Spectator
 
         monkeypatch.setattr(lockstep, "DRIVE_STEPS", 1)
+        monkeypatch.setattr(LockstepExperience, "_wait_for_workers", lambda source, learner: None)
 
         self.driven = threading.Event()
         self.handed = False

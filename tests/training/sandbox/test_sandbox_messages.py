@@ -178,6 +178,57 @@ def test_forged_drive_replies_are_malformed_data(reply: object) -> None:
         env.receive_drive()
 
 
+def _sample(steps: int = 3, **changes: object) -> dict:
+    """A worker's reply to ``sample``: ``steps`` steps of its two envs, actions it drew."""
+    reply = {
+        "obs": np.zeros((steps, 2, 4, 4, 1), np.uint8),
+        "actions": np.ones((steps, 2), np.int64),
+        "rewards": np.ones((steps, 2), np.float32),
+        "dones": np.zeros((steps, 2), bool),
+        "infos": [[dict(GOOD_INFO), dict(GOOD_INFO)] for _ in range(steps)],
+        "next_obs": np.zeros((2, 4, 4, 1), np.uint8),
+    }
+    reply.update(changes)
+    return reply
+
+
+FORGED_SAMPLES = {
+    "fewer_steps_than_asked": _sample(2),
+    "more_steps_than_asked": _sample(4),
+    "action_out_of_the_space": _sample(actions=np.full((3, 2), 3, np.int64)),
+    "action_negative": _sample(actions=np.full((3, 2), -1, np.int64)),
+    "actions_float": _sample(actions=np.ones((3, 2), np.float64)),
+    "actions_shape": _sample(actions=np.ones((3, 3), np.int64)),
+    "obs_dtype": _sample(obs=np.zeros((3, 2, 4, 4, 1), np.float32)),
+    "obs_shape": _sample(obs=np.zeros((3, 2, 4, 5, 1), np.uint8)),
+    "obs_flat": _sample(obs=np.zeros((6, 4, 4, 1), np.uint8)),
+    "next_obs_missing": _sample(next_obs=None),
+    "rewards_nan": _sample(rewards=np.full((3, 2), np.nan, np.float32)),
+    "dones_int": _sample(dones=np.zeros((3, 2), np.int64)),
+    "infos_short": _sample(infos=[[GOOD_INFO, GOOD_INFO]] * 2),
+    "info_extra_key": _sample(infos=[[GOOD_INFO, dict(GOOD_INFO, evil=1)]] * 3),
+    "not_a_dict": [1, 2],
+}
+
+
+def test_a_good_sample_passes() -> None:
+    env = FakeWorkers([_sample()])
+    env.send_sample(None, 3)
+    part = env.receive_sample()
+    assert part.obs.shape == (3, 2, 4, 4, 1) and part.actions.tolist() == [[1, 1]] * 3
+    assert part.next_obs.shape == (2, 4, 4, 1) and len(part.infos) == 3
+
+
+@pytest.mark.parametrize("reply", FORGED_SAMPLES.values(), ids=list(FORGED_SAMPLES))
+def test_forged_sample_replies_are_malformed_data(reply: object) -> None:
+    """A rollout the workers drove is checked before it reaches the update: exactly the steps
+    asked for, and every action one of the action space's (a worker chooses them)."""
+    env = FakeWorkers([reply])
+    env.send_sample(None, 3)
+    with pytest.raises(RolloutError, match="sent malformed data"):
+        env.receive_sample()
+
+
 @pytest.mark.parametrize(
     "reply", [{"obs": np.zeros((2, 4, 4, 1), np.int8)}, {}, "obs"], ids=["dtype", "empty", "text"]
 )
