@@ -72,6 +72,8 @@ SAMPLE_STEPS = 32
 VALUE_BATCH = 64
 """Observations per forward pass when the values and log-probabilities of a sampled rollout
 are computed after it."""
+WATCHED_SAMPLE_STEPS = 8
+"""Steps of a chunk while someone watches the training cars (about 30 ms for 4 cars)."""
 SAMPLES_AHEAD = 2
 """Chunks of a sampled rollout under way at once (:meth:`LockstepExperience._sample_rollout`)."""
 WAIT_S = 0.05
@@ -149,7 +151,9 @@ class Evaluation:
         workers drive: the network goes with the first)."""
         t0 = time.monotonic()
         if self.driven_by_workers:
-            self.venv.send_drive(self._net, DRIVE_STEPS)
+            # Watched, shorter chunks: the car's frames come about as they are driven.
+            steps = min(DRIVE_STEPS, WATCHED_SAMPLE_STEPS) if self.venv.want_frames else DRIVE_STEPS
+            self.venv.send_drive(self._net, steps)
             self._net = None  # the workers keep it
         else:
             self.venv.send_step(greedy_actions(policy, self.obs))
@@ -485,7 +489,7 @@ class LockstepExperience:
             # this one (and while the other worker ends its own), never waiting for a command.
             while len(in_flight) < SAMPLES_AHEAD and sent < n_steps and not stopped:
                 in_flight.append(self._send_chunk(learner, net if sent == 0 else None,
-                                                  min(SAMPLE_STEPS, n_steps - sent),
+                                                  n_steps - sent,
                                                   seed if sent == 0 else None))  # fmt: skip
                 sent += in_flight[-1]
             if not in_flight:
@@ -503,14 +507,20 @@ class LockstepExperience:
             stopped = stopped or bool(learner.stop_reason())  # the chunks under way come back
         if stopped:
             return False
+        self.rollout_ended(learner)  # the live view's laps go on while the values are computed
         fill_rollout_buffer(model, chunks)
-        self.rollout_ended(learner)
         return True
 
-    def _send_chunk(self, learner: Learner, net: dict | None, steps: int,
+    def _send_chunk(self, learner: Learner, net: dict | None, left: int,
                     seed: int | None = None) -> int:  # fmt: skip
+        """The next chunk of at most ``left`` steps goes out; its steps. While the live view
+        shows a training car, chunks are short, so that its frames come as they are driven
+        (a frame every 1/15 s; two long chunks taken up back to back would bring four at
+        once, and the view keeps only the newest two)."""
         # The live view shows the evaluation beside the rollout while there is one.
-        self.venv.want_frames = learner.hooks.frames_wanted() and self.evaluating is None
+        frames = learner.hooks.frames_wanted() and self.evaluating is None
+        steps = min(WATCHED_SAMPLE_STEPS if frames else SAMPLE_STEPS, left)
+        self.venv.want_frames = frames
         self.venv.send_sample(net, steps, seed)
         return steps
 
