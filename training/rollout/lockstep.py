@@ -72,8 +72,9 @@ SAMPLE_STEPS = 32
 VALUE_BATCH = 64
 """Observations per forward pass when the values and log-probabilities of a sampled rollout
 are computed after it."""
-WATCHED_SAMPLE_STEPS = 8
-"""Steps of a chunk while someone watches the training cars (about 30 ms for 4 cars)."""
+WATCHED_CHUNK_STEPS = 8
+"""Steps of a chunk, the training cars' or the evaluation car's, while the live view shows
+that car (about 30 ms for 4 cars): its frames then come about as they are driven."""
 SAMPLES_AHEAD = 2
 """Chunks of a sampled rollout under way at once (:meth:`LockstepExperience._sample_rollout`)."""
 WAIT_S = 0.05
@@ -152,7 +153,7 @@ class Evaluation:
         t0 = time.monotonic()
         if self.driven_by_workers:
             # Watched, shorter chunks: the car's frames come about as they are driven.
-            steps = min(DRIVE_STEPS, WATCHED_SAMPLE_STEPS) if self.venv.want_frames else DRIVE_STEPS
+            steps = min(DRIVE_STEPS, WATCHED_CHUNK_STEPS) if self.venv.want_frames else DRIVE_STEPS
             self.venv.send_drive(self._net, steps)
             self._net = None  # the workers keep it
         else:
@@ -519,7 +520,7 @@ class LockstepExperience:
         once, and the view keeps only the newest two)."""
         # The live view shows the evaluation beside the rollout while there is one.
         frames = learner.hooks.frames_wanted() and self.evaluating is None
-        steps = min(WATCHED_SAMPLE_STEPS if frames else SAMPLE_STEPS, left)
+        steps = min(WATCHED_CHUNK_STEPS if frames else SAMPLE_STEPS, left)
         self.venv.want_frames = frames
         self.venv.send_sample(net, steps, seed)
         return steps

@@ -98,6 +98,9 @@ class _RunnerVecEnv(VecEnv):
         self._actions: np.ndarray | None = None
         self.want_frames = False
         self._seeds: list[int | None] = [None] * num_envs
+        self._samples: deque = deque()
+        """What each :meth:`send_sample` not yet received asked for, oldest first (a second
+        may go before the first one's steps are back)."""
 
     def seed(self, seed: int | None = None) -> Sequence[None | int]:
         if seed is None:
@@ -210,12 +213,11 @@ class LocalVecEnv(_RunnerVecEnv):
             self._net = GreedyNet.from_message(net)
         if seed is not None:
             self._rng = np.random.default_rng([seed, 0])
-        self._sample_steps = getattr(self, "_sample_steps", deque())
-        self._sample_steps.append(steps)
+        self._samples.append(steps)
 
     def receive_sample(self) -> SampledSteps:
         self.runner.want_frames = self.want_frames
-        part = self.runner.sample(self._net, self._sample_steps.popleft(), self._rng)
+        part = self.runner.sample(self._net, self._samples.popleft(), self._rng)
         return SampledSteps(part["obs"], part["actions"], part["rewards"], part["dones"],
                             part["infos"], part["next_obs"])  # fmt: skip
 
@@ -237,15 +239,6 @@ class _WorkerVecEnv(_RunnerVecEnv):
 
     sizes: list[int]
     _sent: list[dict] | None = None
-
-    @property
-    def _samples_sent(self) -> deque[list[dict]]:
-        """The ``sample`` commands sent and not yet received, oldest first (a worker queues
-        the next while it drives one)."""
-        queue = self.__dict__.get("_sample_queue")
-        if queue is None:
-            queue = self.__dict__["_sample_queue"] = deque()
-        return queue
 
     def _exchange(self, messages: list[dict]) -> list[dict]:
         """Each worker's message out, each one's reply back, in order."""
@@ -366,16 +359,7 @@ class _WorkerVecEnv(_RunnerVecEnv):
                 infos = reply.get("infos")
                 if not isinstance(infos, list) or len(infos) > steps:
                     raise checked.Malformed(f"drive infos: expected at most {steps} steps")
-                k = len(infos)
-                rewards = checked.array(reply.get("rewards"), "rewards", dtype=np.float32,
-                                        shape=(k, size))  # fmt: skip
-                checked.rewards(rewards.reshape(-1), "rewards", size=k * size)
-                dones = checked.array(reply.get("dones"), "dones", dtype=bool, shape=(k, size))
-                for step in infos:
-                    if not isinstance(step, list) or len(step) != size:
-                        raise checked.Malformed("infos: expected one per env")
-                parts.append((rewards, dones,
-                              [[self._info(item) for item in step] for step in infos]))  # fmt: skip
+                parts.append(self._chunk(reply, len(infos), size))
         except checked.Malformed as exc:
             raise RolloutError(f"a simulation worker sent malformed data ({exc})") from None
         out = []
@@ -401,7 +385,7 @@ class _WorkerVecEnv(_RunnerVecEnv):
             for i, first in enumerate(first_envs(self.sizes))
         ]  # fmt: skip
         self._send(msgs)
-        self._samples_sent.append(msgs)
+        self._samples.append(msgs)
 
     def sample_ready(self) -> bool:
         return self.drive_ready()
@@ -409,9 +393,9 @@ class _WorkerVecEnv(_RunnerVecEnv):
     def receive_sample(self) -> SampledSteps:
         """The replies to the oldest :meth:`send_sample` not yet received, checked: every
         worker's ``steps`` steps, each action one of the action space's."""
-        if not self._samples_sent:
+        if not self._samples:
             raise RuntimeError("receive_sample without send_sample")
-        msgs = self._samples_sent.popleft()
+        msgs = self._samples.popleft()
         k = msgs[0]["steps"]
         replies = self._receive(msgs)
         obs, actions, rewards, dones, infos, last = [], [], [], [], [[] for _ in range(k)], []
@@ -426,24 +410,32 @@ class _WorkerVecEnv(_RunnerVecEnv):
                 if chosen.size and (chosen.min() < 0 or chosen.max() >= self.action_space.n):
                     raise checked.Malformed("actions: not in the action space")
                 actions.append(chosen)
-                part = checked.array(reply.get("rewards"), "rewards", dtype=np.float32,
-                                     shape=(k, size))  # fmt: skip
-                checked.rewards(part.reshape(-1), "rewards", size=k * size)
-                rewards.append(part)
-                dones.append(checked.array(reply.get("dones"), "dones", dtype=bool,
-                                           shape=(k, size)))  # fmt: skip
                 steps = reply.get("infos")
                 if not isinstance(steps, list) or len(steps) != k:
                     raise checked.Malformed(f"sample infos: expected {k} steps")
-                for t, step in enumerate(steps):
-                    if not isinstance(step, list) or len(step) != size:
-                        raise checked.Malformed("infos: expected one per env")
-                    infos[t].extend(self._info(item) for item in step)
+                part_rewards, part_dones, part_infos = self._chunk(reply, k, size)
+                rewards.append(part_rewards)
+                dones.append(part_dones)
+                for t, step in enumerate(part_infos):
+                    infos[t].extend(step)
         except checked.Malformed as exc:
             raise RolloutError(f"a simulation worker sent malformed data ({exc})") from None
         return SampledSteps(np.concatenate(obs, axis=1), np.concatenate(actions, axis=1),
                             np.concatenate(rewards, axis=1), np.concatenate(dones, axis=1),
                             infos, np.concatenate(last))  # fmt: skip
+
+    def _chunk(self, reply: dict, k: int, size: int) -> tuple[np.ndarray, np.ndarray, list]:
+        """``k`` steps of ``size`` envs from a ``drive`` or ``sample`` reply, checked:
+        rewards and dones (k, size), and each step's infos (one per env)."""
+        rewards = checked.array(reply.get("rewards"), "rewards", dtype=np.float32,
+                                shape=(k, size))  # fmt: skip
+        checked.rewards(rewards.reshape(-1), "rewards", size=k * size)
+        dones = checked.array(reply.get("dones"), "dones", dtype=bool, shape=(k, size))
+        infos = reply.get("infos")
+        for step in infos:
+            if not isinstance(step, list) or len(step) != size:
+                raise checked.Malformed("infos: expected one per env")
+        return rewards, dones, [[self._info(item) for item in step] for step in infos]
 
     @staticmethod
     def _flat(part: Any, steps: int, size: int) -> Any:
