@@ -1,6 +1,6 @@
 """Time and steps for a fresh model to race: DeepRacer's defaults against the racing preset.
 
-Trains from scratch the way a user's job does (camera observations, PPO on the lean network,
+Trains from scratch the way a user's job does (camera observations, PPO on the preset's network,
 the reward running inside the sandboxed rollout workers, 8 cars in 2 workers), for the two
 "Start from" choices of the create-model wizard exactly as it gives them
 (:mod:`training.rl.presets`: action space, example reward, hyperparameters). After every policy
@@ -30,7 +30,7 @@ after) is printed with them.
         [--first-seed 0] [--setups defaults fast] [--modes lockstep streams]
         [--evaluate-after] [--trainer-samples] [--track reinvent_base]
         [--tracks-dir DIR] [--redis-url URL] [--device cpu|cuda|cuda:<n>]
-        [--target-kl X] [--set KEY=VALUE ...]
+        [--target-kl X] [--set KEY=VALUE ...] [--network NAME]
 
 A smoke test: ``--seeds 1 --minutes 1``. reinvent_base (DeepRacer's re:Invent 2018 track) is
 read from ``shared/tracks`` next to the repository (never committed); any built-in track works.
@@ -57,7 +57,9 @@ step's actions (SB3's ``collect_rollouts``) instead of the workers drawing them
 
 ``--set KEY=VALUE`` (an experiment, repeatable) trains the setups with these of DeepRacer's
 hyperparameters changed (``--set lr=0.001 --set num_epochs=5``), checked as a
-``hyperparameters.json`` is; the table's heading prints them.
+``hyperparameters.json`` is; the table's heading prints them. ``--network NAME`` (an
+experiment) trains both setups with this network instead of each preset's own
+(``--network RACECRAFT_LEAN_CNN``: the racing preset as it trained before the compact network).
 
 ``--target-kl X`` (an experiment; the presets and the console set none) trains with PPO's
 ``target_kl`` = X: an update stops its epochs at the first minibatch whose approximate KL
@@ -91,6 +93,7 @@ from training.rl.hyperparams import (  # noqa: E402
     Hyperparameters,
     parse_hyperparameters,
 )
+from training.rl.policies import NetworkError, network_spec  # noqa: E402
 from training.rl.presets import DEEPRACER_DEFAULTS, RACING, Preset  # noqa: E402
 from training.rl.runner import (  # noqa: E402
     IterationResult,
@@ -348,6 +351,17 @@ def parse_overrides(pairs: list[str]) -> dict[str, str]:
     return out
 
 
+def checked_network(name: str) -> str:
+    """``--network``: empty (each preset trains its own network) or a network's name (the
+    test-only ones included); an unknown name stops the bench."""
+    if name:
+        try:
+            network_spec(name)
+        except NetworkError as error:
+            raise SystemExit(f"--network: {error}") from None
+    return name
+
+
 def overridden(preset: Preset, overrides: dict[str, str]) -> Hyperparameters:
     """The preset's hyperparameters with ``overrides``, validated as a hyperparameters.json."""
     if not overrides:
@@ -366,7 +380,7 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
     config = TrainingConfig(
         spec=track_spec(args.track, args.tracks_dir, scratch, preset),
         algorithm=preset.algorithm,
-        network=preset.network,
+        network=args.network or preset.network,
         hyperparameters=overridden(preset, args.overrides),
         max_minutes=args.minutes,
         reward_source=example_source(preset.reward_example),
@@ -467,8 +481,12 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="an experiment: train with this hyperparameter changed "
                              "(repeatable; DeepRacer's names, e.g. lr=0.001)")  # fmt: skip
+    parser.add_argument("--network", default="",
+                        help="an experiment: train with this network instead of the preset's "
+                             "(a name of training.rl.policies)")  # fmt: skip
     args = parser.parse_args()
     args.overrides = parse_overrides(args.set)
+    args.network = checked_network(args.network)
     device = resolve_device(args.device)  # a GPU asked for that this machine lacks fails here
     setups = [
         Setup("defaults", DEEPRACER_DEFAULTS, None),
@@ -477,6 +495,8 @@ def main() -> None:
     modes = list(dict.fromkeys(args.modes))
     print(f"machine: {machine()}", flush=True)
     print(f"trainer device: {device_label(device)}", flush=True)
+    if args.network:
+        print(f"network: {args.network}", flush=True)
     if args.overrides:
         print("hyperparameters changed: "
               + ", ".join(f"{k}={v}" for k, v in args.overrides.items()), flush=True)  # fmt: skip

@@ -1,8 +1,9 @@
 """Where one PPO policy update's time goes, before and after the update's speed-ups.
 
-One update of the racing preset (10 epochs of minibatches of 64, the lean network, 8 actions)
+One update of the racing preset's hyperparameters (10 epochs of minibatches of 64, 8 actions)
 over a rollout of ``--steps`` camera frames (2,000 by default: 20 episodes of about 100 steps,
-what the preset collects per update on re:Invent 2018), in four ways, measured in the same run:
+what the preset collects per update on re:Invent 2018), in five ways, measured in the same run
+(the first four on the lean network, which the racing preset trained before the compact one):
 
 - **SB3's path** (the baseline): every minibatch turns its raw 160×120 frames into floats and
   averages them to 80×60; Adam's loop of per-tensor steps (torch's ``foreach`` Adam);
@@ -11,13 +12,17 @@ what the preset collects per update on re:Invent 2018), in four ways, measured i
   ``adam_kwargs``);
 - **+ channels-last convolutions**: the convolution weights in torch's channels-last layout
   (``build_model`` does this on a CPU, the console's default there; a GPU keeps the default
-  layout, which an H100 ran faster: ``CHANNELS_LAST_DEVICES``).
+  layout, which an H100 ran faster: ``CHANNELS_LAST_DEVICES``);
+- **the compact network**: the console's way on the racing preset's network now
+  (training/rl/presets.py ``RACING.network``; 40×30, 16 and 16 filters, 128 units).
 
 The frames are random pixels: an update's arithmetic does not depend on what the frames show.
 Each way runs ``--repeats`` updates (after one to warm up); the table gives the median seconds
-per update and per minibatch, then torch's profile of one update of the baseline and of the
-console's way on ``--device`` (marked "now"), by operation. Last line: ``update_s=`` (the
-console's way) ``baseline_update_s=`` ``ratio=`` (the console's way / baseline).
+per update and per minibatch, then torch's profile of one update by operation: the baseline,
+the console's way on the lean network (marked "now") and on the compact one, on ``--device``.
+Last line: ``update_s=`` (the console's way on the racing preset's network)
+``lean_update_s=`` (on the lean network) ``baseline_update_s=`` ``ratio=`` (update_s /
+baseline).
 
     .venv/bin/python bench/bench_update.py [--steps 2000] [--repeats 5] [--threads 2]
         [--device cpu|cuda] [--no-profile]
@@ -42,6 +47,7 @@ from stable_baselines3.common.logger import Logger  # noqa: E402
 from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
 
 from training.rl.algorithms import ADAM_EPS, CHANNELS_LAST_DEVICES, build_model  # noqa: E402
+from training.rl.policies import LEAN  # noqa: E402
 from training.rl.presets import RACING  # noqa: E402
 
 ENVS = 8  # the console's training cars
@@ -60,9 +66,10 @@ class Frames(gym.Env):
         return self.observation_space.sample(), 0.0, False, False, {}
 
 
-def make_model(way: str, device: str):
+def make_model(way: str, device: str, network: str = LEAN):
+    """The model of ``way`` (the module's list) on ``network``."""
     model = build_model("clipped_ppo", DummyVecEnv([Frames] * ENVS), RACING.hyperparameters,
-                        device=device)  # fmt: skip
+                        device=device, network=network)  # fmt: skip
     model.set_logger(Logger(folder=None, output_formats=[]))
     if way == "baseline":
         model.prepare_images = False
@@ -130,12 +137,14 @@ def main() -> None:
           f"load average {os.getloadavg()[0]:.1f}")  # fmt: skip
     print(f"one update: {args.steps} frames, {minibatches} minibatches of 64, "
           f"median of {args.repeats}\n")  # fmt: skip
-    ways = ("baseline", "prepared", "fused", "channels_last")
+    ways = ("baseline", "prepared", "fused", "channels_last", "compact")
     now = console_way(args.device)
     labels = {"baseline": "SB3's path (before)", "prepared": "prepared images",
-              "fused": "+ fused Adam", "channels_last": "+ channels-last convolutions"}  # fmt: skip
-    labels[now] += " (now)"
-    models = {way: make_model(way, args.device) for way in ways}
+              "fused": "+ fused Adam", "channels_last": "+ channels-last convolutions",
+              "compact": f"the compact network ({RACING.network}), the console's way"}  # fmt: skip
+    labels[now] += " (now, the lean network)"
+    models = {way: make_model(way, args.device) for way in ways[:-1]}
+    models["compact"] = make_model(now, args.device, RACING.network)
     times: dict[str, list[float]] = {way: [] for way in ways}
     for way in ways:
         timed_update(models[way], args.steps, rng)  # warm-up
@@ -149,11 +158,12 @@ def main() -> None:
               f"{median[way] / median['baseline']:.2f} |")  # fmt: skip
     print(f"\nload average after: {os.getloadavg()[0]:.1f}")
     if not args.no_profile:
-        for way in ("baseline", now):
+        for way in ("baseline", now, "compact"):
             print(f"\nprofile of one update, {labels[way]}:")
             print(profile(models[way], args.steps, rng, 14))
-    print(f"update_s={median[now]:.3f} baseline_update_s={median['baseline']:.3f} "
-          f"ratio={median[now] / median['baseline']:.2f}")  # fmt: skip
+    print(f"update_s={median['compact']:.3f} lean_update_s={median[now]:.3f} "
+          f"baseline_update_s={median['baseline']:.3f} "
+          f"ratio={median['compact'] / median['baseline']:.2f}")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -112,6 +112,13 @@ def test_first_seed_lets_one_process_per_seed_run_side_by_side(bench) -> None:
     assert list(bench.seeds_of(argparse.Namespace(seeds=1, first_seed=4))) == [4]
 
 
+def test_network_is_each_presets_own_or_a_known_name(bench) -> None:
+    assert bench.checked_network("") == ""  # each preset's own
+    assert bench.checked_network("RACECRAFT_LEAN_CNN") == "RACECRAFT_LEAN_CNN"
+    with pytest.raises(SystemExit, match="--network: unknown network 'NOPE'"):
+        bench.checked_network("NOPE")
+
+
 def test_where_failed_evaluations_left_the_track(bench, capsys) -> None:
     assert bench.exit_point(50.0, 2) == (2, 50.0)  # halfway round the second lap
     assert bench.exit_point(130.0, 1) == (1, 100.0)

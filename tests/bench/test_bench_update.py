@@ -9,6 +9,8 @@ import sys
 import torch
 
 from tests.bench.loader import load_bench
+from training.rl.policies import COMPACT, LEAN
+from training.rl.presets import RACING
 
 
 def test_every_way_updates_and_the_last_line_has_the_ratio(monkeypatch, capsys) -> None:
@@ -17,13 +19,16 @@ def test_every_way_updates_and_the_last_line_has_the_ratio(monkeypatch, capsys) 
                                           "--no-profile"])  # fmt: skip
         bench.main()
     out = capsys.readouterr().out
-    rows = [line for line in out.splitlines() if line.startswith("| ") and "way" not in line]
+    rows = [line for line in out.splitlines() if line.startswith("| ") and line[2:5] != "way"]
     assert [r.split(" | ")[0] for r in rows] == [
         "| SB3's path (before)", "| prepared images", "| + fused Adam",
-        "| + channels-last convolutions (now)",
+        "| + channels-last convolutions (now, the lean network)",
+        "| the compact network (RACECRAFT_COMPACT_CNN), the console's way",
     ]  # fmt: skip
     last = out.strip().splitlines()[-1]
-    assert re.fullmatch(r"update_s=[\d.]+ baseline_update_s=[\d.]+ ratio=[\d.]+", last)
+    assert re.fullmatch(
+        r"update_s=[\d.]+ lean_update_s=[\d.]+ baseline_update_s=[\d.]+ ratio=[\d.]+", last
+    )
 
 
 def test_the_ways_are_what_they_say() -> None:
@@ -38,3 +43,13 @@ def test_the_ways_are_what_they_say() -> None:
     old = [m for m in before.policy.modules() if m.__class__.__name__ == "Conv2d"][1].weight
     assert conv.is_contiguous(memory_format=torch.channels_last)
     assert old.is_contiguous()
+    assert before.policy.features_extractor.network == LEAN
+
+
+def test_the_compact_way_is_the_racing_presets_network_the_consoles_way() -> None:
+    with load_bench("bench_update") as bench:
+        compact = bench.make_model("channels_last", "cpu", RACING.network)
+    extractor = compact.policy.features_extractor
+    assert extractor.network == RACING.network == COMPACT
+    assert compact.prepare_images is True
+    assert compact.policy.optimizer.param_groups[0]["fused"] is True

@@ -14,7 +14,8 @@ Keys (deepracer-spec §2.3) and what happens when one is missing:
   (deepracer-spec §4; stored camera first). DeepRacer's older names for the single camera,
   ``OBSERVATION`` and ``LEFT_CAMERA``, are read as ``FRONT_FACING_CAMERA``.
 - ``neural_network``: one of :data:`training.rl.policies.NETWORKS` (DeepRacer's three CNNs and
-  Racecraft's lean CNN); default ``DEEP_CONVOLUTIONAL_NETWORK_SHALLOW`` as in DeepRacer.
+  Racecraft's compact and lean CNNs); default ``DEEP_CONVOLUTIONAL_NETWORK_SHALLOW`` as in
+  DeepRacer.
 - ``version``: SimApp physics version, kept as the string given (a number is turned into its
   string); default ``"5"``.
 

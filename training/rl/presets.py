@@ -18,6 +18,9 @@ track, not for getting round it, so the reward pays speed along the track, anywh
 racing line cuts corners). A discount of 0.99 weighs about 100 steps (7 simulated seconds)
 ahead: far enough to brake for a bend; 0.999 weighs about 1000 (67 s, several laps), so each
 reward's credit is spread over far more steps and takes more experience to sort out.
+The compact network (4×4 averaging to 40×30, 16 and 16 filters, 128 units) updates in about 0.6
+of the lean network's time and, over 10 seeds, reached the preset's goal in fewer steps (median
+16,408 against 19,208): README, "The compact network".
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from dataclasses import dataclass, field
 
 from racing.actions import DEFAULT_DISCRETE
 from training.rl.hyperparams import Hyperparameters
-from training.rl.policies import LEAN
+from training.rl.policies import COMPACT, LEAN
 
 
 @dataclass(frozen=True)
@@ -82,7 +85,7 @@ RACING = Preset(
         "Built for a fast lap soon: 8 actions, each steering angle with the fastest speed the "
         "tyres hold through it (straight at 3 and 4 m/s, 10° at 3, 20° at 2, 30° at 1.5 m/s), "
         "a reward for speed along the track anywhere on it, discount 0.99 (looks 7 s ahead), "
-        "20 episodes per update."
+        "20 episodes per update, and Racecraft's compact network (the fastest to train on a CPU)."
     ),
     action_space=GRIP_GRADED_ACTIONS,
     reward_example="speed_along_track",
@@ -93,6 +96,7 @@ RACING = Preset(
         discount_factor=0.99,
         num_episodes_between_training=20,
     ),
+    network=COMPACT,
 )
 
 PRESETS: tuple[Preset, ...] = (DEEPRACER_DEFAULTS, RACING)

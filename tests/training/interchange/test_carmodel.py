@@ -27,7 +27,7 @@ from training.interchange.carmodel import (
 )
 from training.interchange.export import ARCHIVE_MTIME, checkpoint_bytes
 from training.interchange.tfgraph import parse_graph
-from training.rl.policies import AWS_SHALLOW, LEAN, SHALLOW, STANDARD
+from training.rl.policies import AWS_SHALLOW, COMPACT, LEAN, SHALLOW, STANDARD
 
 ALGORITHMS = ["ppo_discrete", "ppo_continuous", "sac"]
 SENSORS = ["FRONT_FACING_CAMERA", "STEREO_CAMERAS"]
@@ -54,7 +54,7 @@ def assert_agree(actual: np.ndarray, expected: np.ndarray, discrete: bool) -> No
 
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
 @pytest.mark.parametrize("sensor", SENSORS)
-@pytest.mark.parametrize("network", [LEAN, SHALLOW, STANDARD, AWS_SHALLOW])
+@pytest.mark.parametrize("network", [COMPACT, LEAN, SHALLOW, STANDARD, AWS_SHALLOW])
 def test_openvino_converts_the_car_graph_and_agrees(
     network, sensor, algorithm, frames, tmp_path
 ) -> None:
@@ -72,7 +72,7 @@ def test_openvino_converts_the_car_graph_and_agrees(
 @pytest.mark.slow
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
 @pytest.mark.parametrize("sensor", SENSORS)
-@pytest.mark.parametrize("network", [LEAN, SHALLOW])
+@pytest.mark.parametrize("network", [COMPACT, LEAN, SHALLOW])
 def test_tensorflow_runs_the_car_graph_and_agrees(network, sensor, algorithm, frames) -> None:
     meta = metadata_for(network, sensor, algorithm)
     model = randomised_model(meta, seed=7)

@@ -13,6 +13,7 @@ import torch
 from tests.support import tar_gz
 from tests.training.interchange.carmodel_support import (
     metadata_for,
+    randomised_model,
     run_tensorflow,
     stereo,
     torch_outputs,
@@ -24,6 +25,7 @@ from tests.training.interchange.deepracer_support import (
 )
 from training.interchange.archive import ArchiveError, ImportLimits
 from training.interchange.carmodel import (
+    build_car_archive,
     export_car_graph,
     input_name,
     output_name,
@@ -34,7 +36,7 @@ from training.interchange.deepracer import (
     import_deepracer_upload,
 )
 from training.interchange.export import load_checkpoint
-from training.rl.policies import AWS_SHALLOW, SHALLOW
+from training.rl.policies import AWS_SHALLOW, COMPACT, LEAN, SHALLOW
 
 REWARD = b"def reward_function(params):\n    return 1.0\n"
 HYPERPARAMETERS = json.dumps({"batch_size": 64, "lr": 0.0003, "num_epochs": 10}).encode()
@@ -244,3 +246,17 @@ def test_imported_model_clones_for_training(car_files) -> None:
         torch.testing.assert_close(a, b)
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("network", [COMPACT, LEAN])
+def test_racecrafts_own_car_download_imports_back_as_its_network(network, frames) -> None:
+    """The car archive of a Racecraft network (the racing preset's compact one, the lean one)
+    imports back as that network, its policy giving the car graph's outputs."""
+    meta = metadata_for(network, "FRONT_FACING_CAMERA", "ppo_discrete")
+    model = randomised_model(meta, seed=3)
+    imported = import_car_archive(build_car_archive(meta, model))
+    assert imported.metadata.neural_network == network
+    expected = torch_outputs(model, frames)
+    actual = imported_outputs(imported, frames)
+    np.testing.assert_allclose(actual, expected, atol=1e-4, rtol=0)
+    assert (actual.argmax(1) == expected.argmax(1)).all()

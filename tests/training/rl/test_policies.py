@@ -14,6 +14,7 @@ from training.rl.algorithms import build_model
 from training.rl.hyperparams import parse_hyperparameters
 from training.rl.metadata import MetadataError, ModelMetadata, build_metadata
 from training.rl.policies import (
+    COMPACT,
     DEEPRACER_NAMES,
     LEAN,
     NETWORK_LABELS,
@@ -100,3 +101,22 @@ def test_the_tiny_network_is_never_offered_to_users():
     with pytest.raises(MetadataError, match="neural_network"):
         build_metadata(action_space=DISCRETE, neural_network=TINY)
     assert DEEPRACER_NAMES[TINY] == SHALLOW
+
+
+def test_the_compact_network_is_offered_and_cheaper_than_lean() -> None:
+    """Racecraft's compact network (the racing preset's): 4×4 averaging to 40×30, two
+    convolutions of 16 filters, 128 units; a user's choice with valid metadata, exported under
+    DeepRacer's shallow name, and under a third of the lean network's weights."""
+    assert COMPACT in NETWORKS and "compact" in NETWORK_LABELS[COMPACT].lower()
+    assert SPECS[COMPACT] == (4, [(16, 4, 2), (16, 4, 2)], 128)
+    assert build_metadata(action_space=DISCRETE, neural_network=COMPACT).neural_network == COMPACT
+    assert DEEPRACER_NAMES[COMPACT] == SHALLOW
+    extractor = CameraExtractor(gym.spaces.Box(0, 1, (1, 120, 160), np.float32), COMPACT)
+    # (1, 120, 160) -> (1, 30, 40) -> (16, 14, 19) -> (16, 6, 8) = 768 -> 128 units
+    assert extractor.linear[0].in_features == 16 * 6 * 8 and extractor.features_dim == 128
+    assert extractor(torch.zeros(3, 1, 120, 160)).shape == (3, 128)
+    compact, lean = (
+        build("clipped_ppo", SENSORS["mono"], COMPACT),
+        build("clipped_ppo", SENSORS["mono"], LEAN),
+    )
+    assert 3 * parameters(compact) < parameters(lean), (parameters(compact), parameters(lean))

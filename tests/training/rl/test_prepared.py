@@ -19,7 +19,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from training.rl.algorithms import build_model
 from training.rl.checkpoints import load_weights
 from training.rl.hyperparams import parse_hyperparameters
-from training.rl.policies import LEAN, SHALLOW, TINY
+from training.rl.policies import COMPACT, LEAN, SHALLOW, TINY
 from training.rl.prepared import preparable
 from training.rollout.greedy import greedy_actions
 
@@ -82,8 +82,8 @@ def updated(network: str, *, lidar: bool = False, prepare: bool) -> tuple[dict, 
 
 @pytest.mark.parametrize(
     ("network", "lidar"),
-    [(LEAN, False), (TINY, False), (LEAN, True)],
-    ids=["lean", "tiny", "lidar"],
+    [(LEAN, False), (COMPACT, False), (TINY, False), (LEAN, True)],
+    ids=["lean", "compact", "tiny", "lidar"],
 )
 def test_prepared_images_update_exactly_as_sb3(network: str, lidar: bool) -> None:
     ours, our_log = updated(network, lidar=lidar, prepare=True)

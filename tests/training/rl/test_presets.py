@@ -12,6 +12,7 @@ from racing.car import FRICTION, GRAVITY, MAX_SPEED, WHEELBASE_M
 from training.rewards.examples import EXAMPLES, example_source
 from training.rl.hyperparams import defaults_for, parse_hyperparameters
 from training.rl.metadata import build_metadata
+from training.rl.policies import COMPACT, LEAN
 from training.rl.presets import (
     DEEPRACER_DEFAULTS,
     PRESETS,
@@ -48,6 +49,13 @@ def test_the_racing_preset_drives_faster_and_looks_less_far_ahead() -> None:
     assert max(a["speed"] for a in DEEPRACER_DEFAULTS.actions()) == 1.0
     assert RACING.hyperparameters.discount_factor == 0.99
     assert RACING.reward_example == "speed_along_track"
+
+
+def test_the_racing_preset_trains_the_compact_network_and_the_defaults_the_lean_one() -> None:
+    """The racing preset's network is the cheapest to update (README, "The compact network");
+    DeepRacer's defaults keep the network they had, so their figures stay comparable."""
+    assert RACING.network == COMPACT
+    assert DEEPRACER_DEFAULTS.network == LEAN
 
 
 def test_actions_are_a_fresh_copy() -> None:

@@ -96,8 +96,9 @@ A continuous action space instead (PPO or "sac"):
     "action_space": {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 2}},
     "action_space_type": "continuous"
 
-Networks: RACECRAFT_LEAN_CNN (fast on a CPU), DEEP_CONVOLUTIONAL_NETWORK_SHALLOW (DeepRacer's
-3-layer CNN), DEEP_CONVOLUTIONAL_NETWORK (5 layers), DEEP_CONVOLUTIONAL_NETWORK_DEEP.
+Networks: RACECRAFT_COMPACT_CNN (fastest on a CPU), RACECRAFT_LEAN_CNN (fast on a CPU),
+DEEP_CONVOLUTIONAL_NETWORK_SHALLOW (DeepRacer's 3-layer CNN), DEEP_CONVOLUTIONAL_NETWORK
+(5 layers), DEEP_CONVOLUTIONAL_NETWORK_DEEP.
 """
 
 
