@@ -56,6 +56,7 @@ def test_a_preset_link_fills_the_form(alice_client) -> None:
     last = RACING.actions()[-1]
     assert _rows(page)[-1] == (f"{last['steering_angle']:g}", f"{last['speed']:g}") == ("30", "1.5")
     assert html.escape(example_source("speed_along_track")) in page
+    assert re.search(r'<option value="RACECRAFT_COMPACT_CNN" selected>', page)  # its network
 
 
 def test_an_unknown_preset_is_a_clear_error_and_keeps_the_form(alice_client) -> None:
@@ -89,6 +90,7 @@ def test_a_filled_in_preset_creates_its_model(alice, alice_client, store_dir, ch
         loss_type=hp.loss_type,
         num_episodes_between_training=str(hp.num_episodes_between_training),
         reward_function=example_source(chosen.reward_example),
+        neural_network=re.search(r'<option value="(\w+)" selected>[^<]*CNN', page).group(1),
         start_from=chosen.id,
     )
     response = alice_client.post("/models/new/", data)
@@ -100,3 +102,4 @@ def test_a_filled_in_preset_creates_its_model(alice, alice_client, store_dir, ch
     ]
     assert model.hyperparameters["discount_factor"] == hp.discount_factor
     assert model.reward_function == example_source(chosen.reward_example)
+    assert model.neural_network == chosen.network

@@ -31,6 +31,7 @@ def test_a_model_from_the_racing_preset_alone() -> None:
     )
     assert model.reward_function == example_source("speed_along_track")
     assert model.hyperparameters == RACING.hyperparameters.to_json()
+    assert model.neural_network == RACING.network == "RACECRAFT_COMPACT_CNN"
 
 
 def test_the_users_own_reward_replaces_the_presets(tmp_path) -> None:
