@@ -1,6 +1,6 @@
 """Where one PPO policy update's time goes, before and after the update's speed-ups.
 
-One update of the racing preset's hyperparameters (10 epochs of minibatches of 64, 8 actions)
+One update of the racing preset's hyperparameters (10 epochs of minibatches of 32, 8 actions)
 over a rollout of ``--steps`` camera frames (2,000 by default: 20 episodes of about 100 steps,
 what the preset collects per update on re:Invent 2018), in five ways, measured in the same run
 (the first four on the lean network, which the racing preset trained before the compact one):
@@ -131,11 +131,12 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(0)
     frames = max(1, args.steps // ENVS) * ENVS
-    minibatches = RACING.hyperparameters.num_epochs * -(-frames // 64)
+    batch = RACING.hyperparameters.batch_size
+    minibatches = RACING.hyperparameters.num_epochs * -(-frames // batch)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"torch {torch.__version__} on {args.device}, {args.threads} threads, "
           f"load average {os.getloadavg()[0]:.1f}")  # fmt: skip
-    print(f"one update: {args.steps} frames, {minibatches} minibatches of 64, "
+    print(f"one update: {args.steps} frames, {minibatches} minibatches of {batch}, "
           f"median of {args.repeats}\n")  # fmt: skip
     ways = ("baseline", "prepared", "fused", "channels_last", "compact")
     now = console_way(args.device)

@@ -45,7 +45,7 @@ def test_start_from_racing_fills_the_form_and_keeps_the_rest(alice_client, store
     expected = [(f"{a['steering_angle']:g}", f"{a['speed']:g}") for a in RACING.actions()]
     assert _rows(page) == expected
     assert _value(page, "discount_factor") == "0.99"
-    assert re.search(r'<option value="64" selected>', page)  # the batch size
+    assert re.search(r'<option value="32" selected>', page)  # the batch size
     assert html.escape(example_source("speed_along_track")) in page
     assert re.search(r'value="racing"\s+checked', page)
     assert not RacingModel.objects.exists()  # filling in creates nothing

@@ -38,6 +38,15 @@ def fallback_params() -> dict[str, Any]:
     }  # fmt: skip
 
 
+def _target(fd: str) -> str:
+    """What descriptor ``fd`` of this process is (a path, ``pipe:[…]``, ``socket:[…]``...), so
+    that a leak says what leaked; "closed" when it went meanwhile."""
+    try:
+        return os.readlink(f"/proc/self/fd/{fd}")
+    except OSError:
+        return "closed"
+
+
 @contextmanager
 def host_intact(*watched_dirs: Path) -> Iterator[None]:
     """Assert that, across the block, no child process, thread or descriptor was left behind
@@ -52,7 +61,7 @@ def host_intact(*watched_dirs: Path) -> Iterator[None]:
     assert not left, f"processes left behind: {left}"
     assert {t.ident for t in threading.enumerate()} == threads, "threads leaked"
     after = set(os.listdir("/proc/self/fd")) - fds
-    leaked = {fd for fd in after if os.path.exists(f"/proc/self/fd/{fd}")}
+    leaked = {fd: _target(fd) for fd in after if os.path.exists(f"/proc/self/fd/{fd}")}
     assert not leaked, f"descriptors leaked: {leaked}"
     for d, before in listings.items():
         assert sorted(os.listdir(d)) == before, f"files changed in {d}"
