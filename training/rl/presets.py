@@ -21,7 +21,7 @@ reward's credit is spread over far more steps and takes more experience to sort 
 The compact network (4×4 averaging to 40×30, 16 and 16 filters, 128 units) updates in about 0.6
 of the lean network's time and, over 10 seeds, reached the preset's goal in fewer steps (median
 16,408 against 19,208). Minibatches of 32 instead of 64 (twice the gradient steps an update, at
-about 1.25 times its cost) steadied the seeds: over 10 seeds a median of 14,572 steps and at
+1.1-1.2 times its cost) steadied the seeds: over 10 seeds a median of 14,572 steps and at
 most 19,712, against 16,408 and 56,728: README, "The compact network".
 """
 
