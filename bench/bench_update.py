@@ -1,6 +1,6 @@
 """Where one PPO policy update's time goes, before and after the update's speed-ups.
 
-One update of the racing preset's hyperparameters (10 epochs of minibatches of 32, 8 actions)
+One update of the racing preset's hyperparameters (10 epochs of minibatches of 32, 6 actions)
 over a rollout of ``--steps`` camera frames (2,000 by default: 20 episodes of about 100 steps,
 what the preset collects per update on re:Invent 2018), in five ways, measured in the same run
 (the first four on the lean network, which the racing preset trained before the compact one):

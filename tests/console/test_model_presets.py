@@ -44,7 +44,7 @@ def test_start_from_racing_fills_the_form_and_keeps_the_rest(alice_client, store
     assert response.status_code == 200 and _value(page, "name") == "keep-me"
     expected = [(f"{a['steering_angle']:g}", f"{a['speed']:g}") for a in RACING.actions()]
     assert _rows(page) == expected
-    assert _value(page, "discount_factor") == "0.99"
+    assert _value(page, "discount_factor") == "0.98"
     assert re.search(r'<option value="32" selected>', page)  # the batch size
     assert html.escape(example_source("speed_along_track")) in page
     assert re.search(r'value="racing"\s+checked', page)
@@ -54,7 +54,7 @@ def test_start_from_racing_fills_the_form_and_keeps_the_rest(alice_client, store
 def test_a_preset_link_fills_the_form(alice_client) -> None:
     page = alice_client.get("/models/new/?start_from=racing").content.decode()
     last = RACING.actions()[-1]
-    assert _rows(page)[-1] == (f"{last['steering_angle']:g}", f"{last['speed']:g}") == ("30", "1.5")
+    assert _rows(page)[-1] == (f"{last['steering_angle']:g}", f"{last['speed']:g}") == ("20", "2")
     assert html.escape(example_source("speed_along_track")) in page
     assert re.search(r'<option value="RACECRAFT_COMPACT_CNN" selected>', page)  # its network
 

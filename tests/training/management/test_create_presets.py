@@ -40,7 +40,7 @@ def test_the_users_own_reward_replaces_the_presets(tmp_path) -> None:
     run("--name", "mine", "--preset", "racing", "--reward", str(reward))
     model = RacingModel.objects.get(name="mine")
     assert model.reward_function == reward.read_text()
-    assert model.hyperparameters["discount_factor"] == 0.99
+    assert model.hyperparameters["discount_factor"] == 0.98
 
 
 def test_also_train_on_several_tracks() -> None:

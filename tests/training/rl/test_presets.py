@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from racing.actions import DEFAULT_DISCRETE
 from racing.car import FRICTION, GRAVITY, MAX_SPEED, WHEELBASE_M
+from racing.trackgen import min_radius
+from racing.tracks import TrackCatalog
 from training.rewards.examples import EXAMPLES, example_source
 from training.rl.hyperparams import defaults_for, parse_hyperparameters
 from training.rl.metadata import build_metadata
@@ -47,7 +50,7 @@ def test_deepracer_defaults_are_exactly_the_consoles_defaults() -> None:
 def test_the_racing_preset_drives_faster_and_looks_less_far_ahead() -> None:
     assert max(a["speed"] for a in RACING.actions()) == 4.0
     assert max(a["speed"] for a in DEEPRACER_DEFAULTS.actions()) == 1.0
-    assert RACING.hyperparameters.discount_factor == 0.99
+    assert RACING.hyperparameters.discount_factor == 0.98
     assert RACING.hyperparameters.batch_size == 32  # twice the gradient steps: steadier seeds
     assert RACING.reward_example == "speed_along_track"
 
@@ -80,7 +83,7 @@ def test_every_racing_action_is_one_the_tyres_hold() -> None:
         lateral = (v + 0.5) ** 2 * math.tan(math.radians(angle)) / WHEELBASE_M
         assert lateral > grip or v == MAX_SPEED, (angle, v)
     angles = sorted({a["steering_angle"] for a in RACING.actions()})
-    assert angles == [-30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0]  # symmetric, full lock
+    assert angles == [-20.0, -10.0, 0.0, 10.0, 20.0]  # symmetric
 
 
 def test_an_unknown_preset_names_the_known_ones() -> None:
@@ -88,3 +91,42 @@ def test_an_unknown_preset_names_the_known_ones() -> None:
     with pytest.raises(UnknownPreset) as caught:
         preset("turbo")
     assert str(caught.value) == "unknown preset 'turbo': use one of deepracer_defaults, racing"
+
+
+def test_the_racing_presets_sharpest_turn_fits_every_built_in_tracks_tightest_bend() -> None:
+    """Without 30° the tightest circle the car can drive is 20°'s (0.45 m): still tighter than
+    the tightest bend of every built-in track's centre line (README, "Faster laps")."""
+    sharpest = max(abs(a["steering_angle"]) for a in RACING.actions())
+    circle = WHEELBASE_M / math.tan(math.radians(sharpest))
+    catalog = TrackCatalog()
+    assert catalog.ids()
+    for track_id in catalog.ids():
+        assert circle < min_radius(np.array(catalog.load(track_id).waypoints)), track_id
+
+
+def _racing_reward(speed: float, heading: float = 0.0, *, on_track: bool = True) -> float:
+    namespace: dict = {}
+    exec(compile(example_source(RACING.reward_example), "reward", "exec"), namespace)  # ours
+    return namespace["reward_function"](
+        {
+            "is_offtrack": not on_track,
+            "all_wheels_on_track": on_track,
+            "waypoints": [(0.0, 0.0), (1.0, 0.0)],
+            "closest_waypoints": [0, 1],
+            "heading": heading,
+            "speed": speed,
+        }
+    )
+
+
+def test_the_racing_reward_pays_a_metre_more_the_faster_the_car_covers_it() -> None:
+    """A step's reward times the steps a metre takes (1 / speed): the racing reward pays
+    the speed squared, so a metre at 4 m/s earns twice a metre at 2 m/s; the speed itself
+    would pay every metre the same."""
+    per_metre = {v: _racing_reward(v) / v for v in (1.0, 2.0, 4.0)}
+    assert per_metre[4.0] == pytest.approx(2 * per_metre[2.0]) == pytest.approx(4 * per_metre[1.0])
+    assert _racing_reward(4.0) == pytest.approx(4.0)  # DeepRacer's top speed: 4, as before
+    assert _racing_reward(4.0, heading=60.0) == pytest.approx(1.0)  # half of it along the track
+    # Backwards, sideways or off the track earns (almost) nothing, however fast.
+    assert _racing_reward(4.0, heading=180.0) == _racing_reward(4.0, heading=90.0) == 1e-3
+    assert _racing_reward(4.0, on_track=False) == 1e-3
