@@ -247,13 +247,19 @@ class FrameGrabber:
     Frames keep a fixed cadence: each is due one interval after the last was due, not after
     it was sent, so steps of 40 ms still give 15 frames a second (counting from the last frame
     gave every other step: 12.5). After a pause (an update, a reset) the cadence starts again
-    rather than catching up with a burst."""
+    rather than catching up with a burst. :meth:`restart` makes the next frame due at once: a
+    new episode's first step is always shown, however soon the episode ends (an evaluation
+    that leaves the track within a frame's interval of the lap before it sent none)."""
 
     def __init__(self, env: RacingEnv, interval_s: float = FRAME_INTERVAL_S) -> None:
         self.env = env
         self.interval_s = interval_s
         self._due = 0.0
         self._chase = None
+
+    def restart(self) -> None:
+        """The next frame is due at once (a reset starts a new episode)."""
+        self._due = 0.0
 
     def due(self, now: float) -> bool:
         """Whether a frame is due at ``now``; if so, schedules the next one."""
@@ -325,6 +331,7 @@ class EnvRunner:
             obs.append(o)
         self.obs = stack_observations(obs)
         self.finished[:] = False
+        self.frames.restart()
         return self.obs
 
     def step(self, actions: np.ndarray) -> tuple[Any, np.ndarray, np.ndarray, list[dict]]:
