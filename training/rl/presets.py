@@ -95,9 +95,8 @@ RACING = Preset(
         "Built for a fast lap soon: 6 actions, each steering angle with the fastest speed the "
         "tyres hold through it (straight at 3 and 4 m/s, 10° at 3, 20° at 2 m/s), a reward "
         "for the square of the speed along the track anywhere on it, discount 0.98 (looks 3 s "
-        "ahead), "
-        "20 episodes per update in minibatches of 32, and Racecraft's compact network (the "
-        "fastest to train on a CPU)."
+        "ahead), 20 episodes per update in minibatches of 32, and Racecraft's compact network "
+        "(the fastest to train on a CPU)."
     ),
     action_space=GRIP_GRADED_ACTIONS,
     reward_example="speed_along_track",
