@@ -59,19 +59,21 @@ def test_a_seed_that_missed_its_goal_makes_the_median_nan(bench) -> None:
     assert s.worst_s is None  # a miss and no time limit: unknown
     assert bench.summarise(runs, limit_s=480.0).worst_s == 480.0  # the miss counts as its limit
     assert s.lap_s == 9.0 and s.best_lap_s == 8.8
+    assert s.seed_best_s == pytest.approx(9.35)  # the median of 8.8 and 9.9
     assert bench.summarise([]).median_s is None
 
 
 def test_the_last_line_carries_every_figure_and_the_ratio(bench) -> None:
     defaults = bench.SetupSummary(40.0, 9_000.0, 31.25, 29.5, 3, 3)
-    fast = bench.SetupSummary(110.0, 33_000.0, 9.64, 8.91, 3, 3, worst_s=150.0)
+    fast = bench.SetupSummary(110.0, 33_000.0, 9.64, 8.91, 3, 3, worst_s=150.0, seed_best_s=9.2)
     assert bench.key_values(defaults, fast) == (
         "defaults_median_s=40.0 defaults_lap_s=31.25 fast_median_s=110.0 fast_lap_s=9.64 "
-        "fast_worst_s=150.0 best_lap_s=8.91 ratio=2.75"
+        "fast_worst_s=150.0 best_lap_s=8.91 fast_seed_best_s=9.20 ratio=2.75"
     )
     missed = bench.SetupSummary(None, None, None, 12.0, 0, 3)
     line = bench.key_values(defaults, missed)
-    assert "fast_median_s=nan fast_lap_s=nan fast_worst_s=nan best_lap_s=12.00 ratio=nan" in line
+    assert "fast_median_s=nan fast_lap_s=nan fast_worst_s=nan best_lap_s=12.00 " in line
+    assert line.endswith("fast_seed_best_s=nan ratio=nan")
 
 
 def test_the_machine_line_names_cores_and_load(bench) -> None:
