@@ -47,6 +47,30 @@ def _target(fd: str) -> str:
         return "closed"
 
 
+def _native_threads() -> dict[str, str]:
+    """This process's threads as the kernel sees them (Python's and native libraries' own, such
+    as a Rust or gRPC runtime's), id to name."""
+    names = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            names[tid] = Path(f"/proc/self/task/{tid}/comm").read_text().strip()
+        except OSError:
+            continue
+    return names
+
+
+def _leak_report(leaked: dict[str, str], threads_before: dict[str, str]) -> str:
+    """The leaked descriptors, and the threads that could have opened them: a descriptor of
+    a kind the sandbox's parent side never opens (an eventfd, a socket) has come from another
+    library's thread running meanwhile, and its name says which."""
+    now = _native_threads()
+    new = sorted(name for tid, name in now.items() if tid not in threads_before)
+    counts: dict[str, int] = {}
+    for name in now.values():
+        counts[name] = counts.get(name, 0) + 1
+    return f"descriptors leaked: {leaked}; threads started meanwhile: {new}; all threads: {counts}"
+
+
 @contextmanager
 def host_intact(*watched_dirs: Path) -> Iterator[None]:
     """Assert that, across the block, no child process, thread or descriptor was left behind
@@ -55,6 +79,7 @@ def host_intact(*watched_dirs: Path) -> Iterator[None]:
     children = {c.pid for c in me.children(recursive=True)}
     threads = {t.ident for t in threading.enumerate()}
     fds = set(os.listdir("/proc/self/fd"))
+    native = _native_threads()
     listings = {d: sorted(os.listdir(d)) for d in watched_dirs}
     yield
     left = [c for c in me.children(recursive=True) if c.pid not in children]
@@ -62,6 +87,6 @@ def host_intact(*watched_dirs: Path) -> Iterator[None]:
     assert {t.ident for t in threading.enumerate()} == threads, "threads leaked"
     after = set(os.listdir("/proc/self/fd")) - fds
     leaked = {fd: _target(fd) for fd in after if os.path.exists(f"/proc/self/fd/{fd}")}
-    assert not leaked, f"descriptors leaked: {leaked}"
+    assert not leaked, _leak_report(leaked, native)
     for d, before in listings.items():
         assert sorted(os.listdir(d)) == before, f"files changed in {d}"
