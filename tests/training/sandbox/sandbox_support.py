@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import threading
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -65,9 +66,7 @@ def _leak_report(leaked: dict[str, str], threads_before: dict[str, str]) -> str:
     library's thread running meanwhile, and its name says which."""
     now = _native_threads()
     new = sorted(name for tid, name in now.items() if tid not in threads_before)
-    counts: dict[str, int] = {}
-    for name in now.values():
-        counts[name] = counts.get(name, 0) + 1
+    counts = dict(Counter(now.values()))
     return f"descriptors leaked: {leaked}; threads started meanwhile: {new}; all threads: {counts}"
 
 
