@@ -8,6 +8,13 @@ group (SIGKILL) when the overall deadline passes or a call it sees start (the he
 shared memory says only *that* a call is under way) lasts longer than the per-call limit. A
 child that forges or stops its heartbeat is still caught by the message deadlines. Signals
 inside the child are not relied upon.
+
+A call's clock leaves out the time the process running it waited for a CPU (the kernel's own
+count, ``/proc/<pid>/schedstat``, read by the parent): on a machine busy with other jobs a
+reward that needs a millisecond can wait seconds for its turn, and that is the host's load,
+not the user's code. Sleeping and blocking still count. The wall clock still ends any call at
+:data:`CALL_BACKSTOP` times the limit, so a child cannot stretch its own clock past that by
+keeping the CPUs busy.
 """
 
 from __future__ import annotations
@@ -55,6 +62,9 @@ PACKAGE_ROOT = str(Path(__file__).resolve().parents[2])
 WATCHDOG_PERIOD_S = 0.02
 #: Added to the per-call limit for a reply to arrive (encoding, a loaded machine).
 CALL_SLACK_S = 2.0
+#: A call ends at this many times the per-call limit on the wall clock, however long it
+#: waited for a CPU (module docstring).
+CALL_BACKSTOP = 10.0
 #: Memory a child may use for its imports and set-up (our code, before lock-down), on top of
 #: its limits' ``memory_bytes``; at lock-down the cgroup is tightened to what it then holds
 #: plus ``memory_bytes``.
@@ -73,6 +83,33 @@ _SIGNAL_WORDS = {
 
 def _state(reason: str | None) -> str:
     return "active" if reason is None else f"unavailable: {reason}"
+
+
+def runqueue_wait_s(pid: int) -> float | None:
+    """Seconds the task ``pid`` has spent runnable but waiting for a CPU since it started (the
+    second field of ``/proc/<pid>/schedstat``); None where the kernel does not say."""
+    try:
+        with open(f"/proc/{pid}/schedstat", "rb") as f:
+            return int(f.read().split()[1]) / 1e9
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def call_overran(wall_s: float, waited_s: float, limit_s: float) -> bool:
+    """Whether a call under way for ``wall_s`` seconds, ``waited_s`` of them waiting for a CPU,
+    has passed ``limit_s``: the time it ran or slept, or the wall-clock backstop."""
+    return wall_s - waited_s > limit_s or wall_s > limit_s * CALL_BACKSTOP
+
+
+def calling_pid(pid: int) -> int:
+    """The process that runs the calls of the sandbox child ``pid``: the child itself, or the
+    process it forked into its new PID namespace (the child then only waits for it)."""
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            children = f.read().split()
+    except OSError:
+        return pid
+    return int(children[0]) if len(children) == 1 else pid
 
 
 @dataclass(frozen=True)
@@ -432,7 +469,8 @@ class SandboxProcess:
         limit = self.limits.per_call_seconds
         proc = self._proc
         assert proc is not None
-        seen, since = (0, 0), time.monotonic()
+        seen, since, waited = (0, 0), time.monotonic(), None
+        caller: int | None = None
         while not self._stop.wait(WATCHDOG_PERIOD_S):
             if proc.poll() is not None:
                 return
@@ -445,14 +483,23 @@ class SandboxProcess:
             # A call starts when the step moves on or the start stamp goes from 0 to set; a
             # stamp refreshed within one call does not restart its clock.
             if mark[0] != seen[0] or (mark[1] and not seen[1]):
-                since = now
+                if mark[1] and caller is None:  # calls begin after the fork, if any
+                    caller = calling_pid(proc.pid)
+                since, waited = now, runqueue_wait_s(caller) if caller else None
             seen = mark
-            if mark[1] and now - since > limit:
+            if mark[1] and now - since > limit and self._overran_call(now - since, caller, waited):
                 step = mark[0]
                 what = f"reward_function at step {step}" if step else "loading the module"
                 self._overran = True
                 self._kill(self.late_words(what))
                 return
+
+    def _overran_call(self, wall_s: float, caller: int | None, waited: float | None) -> bool:
+        """A call under way for ``wall_s`` (past the limit on the wall clock): whether it passed
+        the limit once the time its process waited for a CPU is left out."""
+        now_waited = runqueue_wait_s(caller) if caller and waited is not None else None
+        queued = 0.0 if now_waited is None or waited is None else max(0.0, now_waited - waited)
+        return call_overran(wall_s, queued, self.limits.per_call_seconds)
 
     def _close_fds(self) -> None:
         for name in ("_to_child", "_from_child"):

@@ -1,5 +1,7 @@
 """The parent's clock decides: a child that forges or stops its heartbeat is still killed at
-the deadline with its whole process group, and no child outlives its caller.
+the deadline with its whole process group, and no child outlives its caller. A call's clock
+leaves out the time its process waited for a CPU (a machine busy with other jobs), up to a
+backstop on the wall clock.
 
 Python guards are off in these tests so the reward can reach its own heartbeat (through gc),
 which is the worst case: the guards normally refuse both ``gc`` and private attributes.
@@ -7,6 +9,7 @@ which is the worst case: the guards normally refuse both ``gc`` and private attr
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import time
@@ -17,6 +20,7 @@ import pytest
 from tests.training.sandbox.sandbox_support import host_intact, real_params
 from training.sandbox import SandboxLimits, SandboxProcess, SandboxTimeout, evaluate_reward
 from training.sandbox.oneshot import SERVE_TARGET
+from training.sandbox.process import CALL_BACKSTOP, call_overran, calling_pid, runqueue_wait_s
 
 LIMITS = SandboxLimits(per_call_seconds=0.5, cpu_seconds=120)
 FIND_HEARTBEAT = (
@@ -124,3 +128,64 @@ def test_a_child_that_clears_its_parent_death_signal_still_dies_with_its_caller(
         caller.kill()
         caller.wait()
     assert _wait_gone(child)
+
+
+def test_the_time_a_call_waited_for_a_cpu_is_not_the_users() -> None:
+    assert not call_overran(wall_s=3.0, waited_s=2.5, limit_s=1.0)  # ran or slept 0.5 s
+    assert call_overran(wall_s=3.0, waited_s=1.5, limit_s=1.0)  # ran or slept 1.5 s
+    assert call_overran(wall_s=1.5, waited_s=0.0, limit_s=1.0)  # a sleep counts in full
+    # However long it waited, the wall clock ends it at the backstop.
+    assert call_overran(wall_s=CALL_BACKSTOP + 0.1, waited_s=CALL_BACKSTOP, limit_s=1.0)
+
+
+def test_the_kernel_says_how_long_a_process_waited_for_a_cpu() -> None:
+    waited = runqueue_wait_s(os.getpid())
+    assert waited is not None and waited >= 0.0
+    assert runqueue_wait_s(2**22 + 1) is None  # above pid_max: no such process
+
+
+BURN_CPU = (
+    "import time\n\n"
+    "def reward_function(params):\n"
+    "    end = time.process_time() + 0.2  # 0.2 s of the CPU, a fifth of the limit\n"
+    "    while time.process_time() < end:\n"
+    "        pass\n"
+    "    return 1.0\n"
+)
+HOG = "import os, sys\nos.sched_setaffinity(0, {int(sys.argv[1])})\nwhile True:\n    pass\n"
+
+
+def test_a_call_that_waits_for_a_busy_cpu_is_not_killed_for_it() -> None:
+    """Seven busy processes (each its own session, as other jobs are) share one CPU with the
+    sandbox: its 0.2 s of work takes longer than the 1 s limit on the wall clock, and the call
+    still returns, since the kernel counts the time it waited for its turn."""
+    cpu = min(os.sched_getaffinity(0))
+    limits = SandboxLimits(per_call_seconds=1.0, cpu_seconds=120)
+    with host_intact():
+        sb = SandboxProcess(
+            target=SERVE_TARGET, reward_source=BURN_CPU, limits=limits, python_guards=False
+        )
+        hogs: list[subprocess.Popen] = []
+        try:
+            sb.start()
+            caller = calling_pid(sb.pid)
+            if sb.layers.get("namespaces") == "active":  # the calls run in the forked process
+                assert caller != sb.pid and psutil.Process(caller).ppid() == sb.pid
+            os.sched_setaffinity(caller, {cpu})
+            hogs = [
+                subprocess.Popen([sys.executable, "-c", HOG, str(cpu)], start_new_session=True)
+                for _ in range(7)
+            ]
+            waited, started = runqueue_wait_s(caller), time.monotonic()
+            sb.send(real_params())
+            value = sb.recv(CALL_BACKSTOP * 6).value
+            wall = time.monotonic() - started
+            queued = runqueue_wait_s(caller)
+        finally:
+            for hog in hogs:
+                hog.kill()
+                hog.wait()
+            sb.close()
+    assert value == 1.0
+    assert wall > limits.per_call_seconds  # the wall clock alone would have killed it
+    assert waited is not None and queued is not None and queued - waited > 0.5
