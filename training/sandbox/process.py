@@ -469,7 +469,9 @@ class SandboxProcess:
         limit = self.limits.per_call_seconds
         proc = self._proc
         assert proc is not None
-        seen, since, waited = (0, 0), time.monotonic(), None
+        seen, since = (0, 0), time.monotonic()
+        waited: float | None = None  # the kernel's count when this call's own clock began
+        unseen = 0.0  # the part of the call before that, when this thread itself was late
         caller: int | None = None
         while not self._stop.wait(WATCHDOG_PERIOD_S):
             if proc.poll() is not None:
@@ -483,22 +485,37 @@ class SandboxProcess:
             # A call starts when the step moves on or the start stamp goes from 0 to set; a
             # stamp refreshed within one call does not restart its clock.
             if mark[0] != seen[0] or (mark[1] and not seen[1]):
-                if mark[1] and caller is None:  # calls begin after the fork, if any
-                    caller = calling_pid(proc.pid)
-                since, waited = now, runqueue_wait_s(caller) if caller else None
+                since, waited = now, None
+            elif mark[1] and waited is None:
+                # The same call a tick later (most take microseconds): from here on its
+                # process's wait for a CPU is left out of its clock; the kernel is asked
+                # only for calls this long, never in a run of quick ones. A tick is
+                # charged for the time before; more than that is this thread running late.
+                caller = caller or calling_pid(proc.pid)  # calls begin after any fork
+                waited = runqueue_wait_s(caller)
+                unseen = max(0.0, now - since - WATCHDOG_PERIOD_S)
             seen = mark
-            if mark[1] and now - since > limit and self._overran_call(now - since, caller, waited):
+            if (
+                mark[1]
+                and now - since > limit
+                and self._overran_call(now - since, caller, waited, unseen)
+            ):
                 step = mark[0]
                 what = f"reward_function at step {step}" if step else "loading the module"
                 self._overran = True
                 self._kill(self.late_words(what))
                 return
 
-    def _overran_call(self, wall_s: float, caller: int | None, waited: float | None) -> bool:
+    def _overran_call(
+        self, wall_s: float, caller: int | None, waited: float | None, unseen: float
+    ) -> bool:
         """A call under way for ``wall_s`` (past the limit on the wall clock): whether it passed
-        the limit once the time its process waited for a CPU is left out."""
+        the limit once the time its process waited for a CPU since ``waited`` (the kernel's
+        count then), and ``unseen`` before that, are left out."""
         now_waited = runqueue_wait_s(caller) if caller and waited is not None else None
-        queued = 0.0 if now_waited is None or waited is None else max(0.0, now_waited - waited)
+        if now_waited is None or waited is None:
+            return call_overran(wall_s, 0.0, self.limits.per_call_seconds)
+        queued = unseen + max(0.0, now_waited - waited)
         return call_overran(wall_s, queued, self.limits.per_call_seconds)
 
     def _close_fds(self) -> None:
