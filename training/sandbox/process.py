@@ -512,10 +512,10 @@ class SandboxProcess:
         """A call under way for ``wall_s`` (past the limit on the wall clock): whether it passed
         the limit once the time its process waited for a CPU since ``waited`` (the kernel's
         count then), and ``unseen`` before that, are left out."""
-        now_waited = runqueue_wait_s(caller) if caller and waited is not None else None
-        if now_waited is None or waited is None:
-            return call_overran(wall_s, 0.0, self.limits.per_call_seconds)
-        queued = unseen + max(0.0, now_waited - waited)
+        queued = 0.0
+        if caller is not None and waited is not None:
+            now_waited = runqueue_wait_s(caller)
+            queued = 0.0 if now_waited is None else unseen + max(0.0, now_waited - waited)
         return call_overran(wall_s, queued, self.limits.per_call_seconds)
 
     def _close_fds(self) -> None:
