@@ -95,6 +95,9 @@ def unshare_namespaces() -> str | None:
     return None
 
 
+_UNCATCHABLE = frozenset({signal.SIGKILL, signal.SIGSTOP})
+
+
 def _wait_and_exit(pid: int) -> None:
     """In the process outside the PID namespace: close every descriptor (the pipes are the
     sandboxed process's alone), wait for it, and leave with its status, a signal as that
@@ -111,9 +114,12 @@ def _wait_and_exit(pid: int) -> None:
             continue
     if os.WIFSIGNALED(status):
         sig = os.WTERMSIG(status)
-        signal.signal(sig, signal.SIG_DFL)
-        os.kill(os.getpid(), sig)
-        os.kill(os.getpid(), signal.SIGKILL)  # a signal whose default is to continue
+        if sig not in _UNCATCHABLE:  # signal.signal refuses these (EINVAL)
+            signal.signal(sig, signal.SIG_DFL)
+            os.kill(os.getpid(), sig)
+        # SIGKILL itself (the CPU time's hard limit: the kernel spares a namespace's first
+        # process the soft limit's SIGXCPU), or a signal whose default is to continue.
+        os.kill(os.getpid(), signal.SIGKILL)
     os._exit(os.waitstatus_to_exitcode(status) & 0xFF)
 
 

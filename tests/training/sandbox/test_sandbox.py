@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -24,6 +25,7 @@ from training.sandbox import (
     evaluate_reward,
     isolation_support,
     landlock,
+    lockdown,
     run_sandboxed,
     seccomp,
 )
@@ -176,7 +178,10 @@ def test_the_memory_limit_holds_in_numpy() -> None:
 @pytest.mark.slow
 def test_the_cpu_limit_kills_a_child_that_hides_from_the_watchdog() -> None:
     # Python guards off: the code zeroes its own heartbeat; RLIMIT_CPU or the parent's own
-    # deadline stops it, whichever comes first.
+    # deadlines stop it, whichever comes first. As the first process of its PID namespace the
+    # child is spared the soft limit's SIGXCPU, so the hard limit's SIGKILL ends it: its
+    # waiter outside the namespace must pass that on (it said "exited unexpectedly (status
+    # 3)" before).
     source = (
         "import gc\n\ndef reward_function(params):\n"
         "    for o in gc.get_objects():\n"
@@ -188,8 +193,40 @@ def test_the_cpu_limit_kills_a_child_that_hides_from_the_watchdog() -> None:
     start = time.monotonic()
     result = evaluate_reward(source, [real_params()], limits=limits, python_guards=False)
     (err,) = result.errors
-    assert any(w in err.message for w in ("CPU", "SIGKILL", "took longer than 0.5 s"))
+    words = ("CPU", "SIGKILL", "took longer than 0.5 s", "ran past its overall limit")
+    assert any(w in err.message for w in words), err.message
     assert time.monotonic() - start < 10
+
+
+@pytest.mark.parametrize("death", ["SIGKILL", "SIGTERM", "SIGXCPU", "exit 7"])
+def test_the_waiter_outside_the_pid_namespace_ends_as_the_sandboxed_process_did(
+    death: str,
+) -> None:
+    """``_wait_and_exit`` passes on how the sandboxed process ended, a SIGKILL included (the
+    parent's words for the user come from it): here in a forked process, where a Python
+    exception would end it with status 3."""
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - runs in the forked process
+        try:
+            inner = os.fork()
+            if inner == 0:
+                resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+                if death.startswith("exit"):
+                    os._exit(int(death.split()[1]))
+                sig = signal.Signals[death]
+                if sig is not signal.SIGKILL:
+                    signal.signal(sig, signal.SIG_DFL)
+                os.kill(os.getpid(), sig)
+                os._exit(0)
+            lockdown._wait_and_exit(inner)
+        finally:
+            os._exit(3)
+    _, status = os.waitpid(pid, 0)
+    if death.startswith("exit"):
+        assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == int(death.split()[1])
+    else:
+        assert os.WIFSIGNALED(status), f"exit status {os.waitstatus_to_exitcode(status)}"
+        assert os.WTERMSIG(status) == signal.Signals[death]
 
 
 def test_the_parent_keeps_running_when_many_sandboxes_die() -> None:
