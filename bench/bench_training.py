@@ -30,7 +30,7 @@ after) is printed with them.
         [--first-seed 0] [--setups defaults fast] [--modes lockstep streams]
         [--evaluate-after] [--trainer-samples] [--track reinvent_base]
         [--tracks-dir DIR] [--redis-url URL] [--device cpu|cuda|cuda:<n>]
-        [--target-kl X] [--set KEY=VALUE ...] [--network NAME]
+        [--target-kl X] [--set KEY=VALUE ...] [--network NAME] [--actions JSON]
 
 A smoke test: ``--seeds 1 --minutes 1``. reinvent_base (DeepRacer's re:Invent 2018 track) is
 read from ``shared/tracks`` next to the repository (never committed); any built-in track works.
@@ -62,6 +62,11 @@ hyperparameters changed (``--set lr=0.001 --set num_epochs=5``), checked as a
 experiment) trains both setups with this network instead of each preset's own
 (``--network RACECRAFT_LEAN_CNN``: the racing preset as it trained before the compact network).
 
+``--actions JSON`` (an experiment) trains the racing preset with this discrete action space, a
+list in ``model_metadata.json``'s form, checked as the console checks one
+(``--actions '[{"steering_angle": 0, "speed": 4}, …]'``: the racing preset before "Why seeds
+stall"); DeepRacer's defaults keep theirs.
+
 ``--target-kl X`` (an experiment; the presets and the console set none) trains with PPO's
 ``target_kl`` = X: an update stops its epochs at the first minibatch whose approximate KL
 exceeds 1.5 × X. Each iteration's line then adds the epochs its update ran (an epoch stopped
@@ -71,12 +76,15 @@ early counts), and each setup's summary the mean epochs per update up to the goa
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import os
 import platform
 import shutil
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -87,6 +95,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import torch  # noqa: E402
 
 from console.launcher import EmbeddedRedis, Supervisor  # noqa: E402
+from racing.actions import ActionSpaceError, ActionSpec  # noqa: E402
 from training.rewards.examples import example_source  # noqa: E402
 from training.rl.algorithms import resolve_device  # noqa: E402
 from training.rl.hyperparams import (  # noqa: E402
@@ -369,6 +378,33 @@ def checked_network(name: str) -> str:
     return name
 
 
+def checked_actions(text: str) -> tuple[dict, ...] | None:
+    """``--actions``: empty (the racing preset's own, None) or a JSON list of discrete actions,
+    checked as a model's ``action_space``; anything else stops the bench."""
+    if not text:
+        return None
+    try:
+        spec = ActionSpec.parse(json.loads(text))
+    except (ValueError, ActionSpaceError) as error:  # JSON's errors are ValueErrors
+        raise SystemExit(f"--actions: {error}") from None
+    if spec.kind != "discrete":
+        raise SystemExit("--actions: give a list of discrete actions, not ranges")
+    return tuple({"steering_angle": a, "speed": v} for a, v in spec.actions)
+
+
+def described(actions) -> str:
+    """An action space in a line: "0° at 3.5 m/s, 0° at 3 m/s, -10° at 3 m/s, …"."""
+    return ", ".join(f"{a['steering_angle']:g}° at {a['speed']:g} m/s" for a in actions)
+
+
+def racing_setup(args: argparse.Namespace) -> Setup:
+    """The racing preset and its goal, with ``args.actions`` where given."""
+    preset = RACING
+    if getattr(args, "actions", None):
+        preset = dataclasses.replace(RACING, action_space=args.actions)
+    return Setup("fast", preset, args.lap_limit)
+
+
 def overridden(preset: Preset, overrides: dict[str, str]) -> Hyperparameters:
     """The preset's hyperparameters with ``overrides``, validated as a hyperparameters.json."""
     if not overrides:
@@ -381,7 +417,10 @@ def overridden(preset: Preset, overrides: dict[str, str]) -> Hyperparameters:
 
 
 def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
-            mode: str = "lockstep", redis_url: str = "") -> Run:  # fmt: skip
+            mode: str = "lockstep", redis_url: str = "",
+            make_hooks: Callable[..., UntilGoal] | None = None) -> Run:  # fmt: skip
+    """One seed of ``setup`` to its goal or ``args.minutes``; ``make_hooks`` (UntilGoal, or
+    what builds a subclass of it, as bench_stalls.py's) makes what follows its iterations."""
     run = Run(setup.name, seed, mode)
     preset = setup.preset
     config = TrainingConfig(
@@ -401,7 +440,9 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
         eval_from_start_line=True,
         device=args.device,
     )
-    hooks = UntilGoal(run, setup.lap_limit_s, show_epochs=args.target_kl is not None)
+    hooks = (make_hooks or UntilGoal)(
+        run, setup.lap_limit_s, show_epochs=args.target_kl is not None
+    )
     start = time.monotonic()
     loop = TrainingLoop(config, hooks)  # as train() does, with the model at hand
     if args.target_kl is not None:
@@ -491,19 +532,22 @@ def main() -> None:
     parser.add_argument("--network", default="",
                         help="an experiment: train with this network instead of the preset's "
                              "(a name of training.rl.policies)")  # fmt: skip
+    parser.add_argument("--actions", default="",
+                        help="an experiment: train the racing preset with this action space "
+                             "(a JSON list of {steering_angle, speed})")  # fmt: skip
     args = parser.parse_args()
     args.overrides = parse_overrides(args.set)
     args.network = checked_network(args.network)
+    args.actions = checked_actions(args.actions)
     device = resolve_device(args.device)  # a GPU asked for that this machine lacks fails here
-    setups = [
-        Setup("defaults", DEEPRACER_DEFAULTS, None),
-        Setup("fast", RACING, args.lap_limit),
-    ]
+    setups = [Setup("defaults", DEEPRACER_DEFAULTS, None), racing_setup(args)]
     modes = list(dict.fromkeys(args.modes))
     print(f"machine: {machine()}", flush=True)
     print(f"trainer device: {device_label(device)}", flush=True)
     if args.network:
         print(f"network: {args.network}", flush=True)
+    if args.actions:
+        print(f"racing preset's actions: {described(args.actions)}", flush=True)
     if args.overrides:
         print("hyperparameters changed: "
               + ", ".join(f"{k}={v}" for k, v in args.overrides.items()), flush=True)  # fmt: skip

@@ -121,6 +121,35 @@ def test_network_is_each_presets_own_or_a_known_name(bench) -> None:
         bench.checked_network("NOPE")
 
 
+def test_actions_replace_the_racing_presets_own_and_are_checked_as_a_models(bench) -> None:
+    import argparse
+
+    four = '[{"steering_angle": 0, "speed": 4}, {"steering_angle": 20, "speed": 2}]'
+    actions = bench.checked_actions(four)
+    assert actions == (
+        {"steering_angle": 0.0, "speed": 4.0},
+        {"steering_angle": 20.0, "speed": 2.0},
+    )
+    setup = bench.racing_setup(argparse.Namespace(actions=actions, lap_limit=10.0))
+    assert setup.preset.actions() == list(actions) and setup.lap_limit_s == 10.0
+    assert setup.preset.hyperparameters == bench.RACING.hyperparameters  # only the actions
+    assert bench.racing_setup(argparse.Namespace(actions=None, lap_limit=10.0)).preset is (
+        bench.RACING
+    )
+    assert bench.checked_actions("") is None
+    assert bench.described(actions) == "0° at 4 m/s, 20° at 2 m/s"
+    with pytest.raises(SystemExit, match="--actions: action 0: speed 5 is outside 0.1..4 m/s"):
+        bench.checked_actions(
+            '[{"steering_angle": 0, "speed": 5}, {"steering_angle": 1, "speed": 1}]'
+        )
+    with pytest.raises(SystemExit, match="--actions: "):
+        bench.checked_actions("[{")  # not JSON
+    with pytest.raises(SystemExit, match="--actions: give a list of discrete actions"):
+        bench.checked_actions(
+            '{"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 1, "high": 2}}'
+        )
+
+
 def test_where_failed_evaluations_left_the_track(bench, capsys) -> None:
     assert bench.exit_point(50.0, 2) == (2, 50.0)  # halfway round the second lap
     assert bench.exit_point(130.0, 1) == (1, 100.0)

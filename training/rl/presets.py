@@ -33,6 +33,14 @@ of the lean network's time and, over 10 seeds, reached the preset's goal in fewe
 speed and the discount of 0.98 together drive faster laps at the goal for the same training (15
 seeds: a median qualifying lap of 6.00 against 7.00 s, best lap 5.33 against 5.40 s, a median of
 13,448 steps against 14,952): README, "Faster laps".
+Why straight ahead stops at 3.5 m/s: the camera's single frame does not show how fast the car
+is going, and the car needs time to brake (from 4 to 2 m/s, a quarter of a second). With 4 m/s
+the seeds that stalled drove clean laps and then left the track again, update after update,
+at the same place: the greedy car took 4 m/s on the short straight between two bends and reached
+the second at 3.0-4.0 m/s. The same policies with 4 m/s replaced by 3 m/s drove three clean
+laps every time (``bench/bench_stalls.py``). With 3.5 m/s at the top, over 30 seeds: a median
+of 12,316 steps to the goal against 13,896, at most 23,632 against 42,120, laps no slower (a
+median qualifying lap of 5.93 against 6.00 s): README, "Why seeds stall".
 """
 
 from __future__ import annotations
@@ -78,22 +86,28 @@ DEEPRACER_DEFAULTS = Preset(
     reward_example="follow_center_line",
 )
 
+STRAIGHT_TOP_SPEED = 3.5
+"""The racing preset's fastest action, straight ahead, in m/s (DeepRacer allows 4): the camera's
+single frame does not show the car's speed, and a car at 4 m/s on the short straight between
+two bends reaches the second one too fast (module docstring)."""
+
 GRIP_GRADED_ACTIONS: tuple[dict, ...] = (
-    {"steering_angle": 0.0, "speed": 4.0},
+    {"steering_angle": 0.0, "speed": STRAIGHT_TOP_SPEED},
     {"steering_angle": 0.0, "speed": 3.0},
     {"steering_angle": -10.0, "speed": 3.0},
     {"steering_angle": 10.0, "speed": 3.0},
     {"steering_angle": -20.0, "speed": 2.0},
     {"steering_angle": 20.0, "speed": 2.0},
 )
-"""Each steering angle with the fastest speed the tyres hold through it (module docstring)."""
+"""Each steering angle with the fastest speed the tyres hold through it, straight ahead at
+:data:`STRAIGHT_TOP_SPEED` (module docstring)."""
 
 RACING = Preset(
     id="racing",
     label="Racing preset (fast laps soon)",
     summary=(
         "Built for a fast lap soon: 6 actions, each steering angle with the fastest speed the "
-        "tyres hold through it (straight at 3 and 4 m/s, 10° at 3, 20° at 2 m/s), a reward "
+        "tyres hold through it (straight at 3 and 3.5 m/s, 10° at 3, 20° at 2 m/s), a reward "
         "for the square of the speed along the track anywhere on it, discount 0.98 (looks 3 s "
         "ahead), 20 episodes per update in minibatches of 32, and Racecraft's compact network "
         "(the fastest to train on a CPU)."
