@@ -9,16 +9,16 @@ checkpoint it evaluated:
 - **greedy**: the car's argmax, as the evaluation drove (it fails again, give or take a
   near-tie that the worker's NumPy network and torch round differently);
 - **capped**: the same greedy choices, except that the fastest action is replaced with the
-  action of the same steering at the next slower speed (the racing preset's 4 m/s straight
-  becomes 3 m/s straight): the policy unchanged, only its top speed taken away;
+  action of the same steering at the next slower speed (the racing preset's 3.5 m/s straight,
+  4 m/s before, becomes 3 m/s straight): the policy unchanged, only its top speed taken away;
 - **sampled**: the policy's own probabilities, ``--samples`` times (how the training cars
   drive).
 
 For each failure the table gives where it left the track, the car's top speed over the 15
 steps before it left, and how many of those steps took the fastest action. What it showed
-(README, "Why seeds stall"): the greedy car takes the 4 m/s action on the short straight
-between two bends and arrives at the second one too fast; the camera's single frame does not
-show the car's speed.
+with the preset before (README, "Why seeds stall"): the greedy car took the 4 m/s action on the
+short straight between two bends and arrived at the second one too fast (capped, 34 of 34 drove
+3 clean laps); the camera's single frame does not show the car's speed.
 
     .venv/bin/python bench/bench_stalls.py [--seeds 12] [--first-seed 0] [--samples 10]
         [--minutes 6] [--track reinvent_base] [--set KEY=VALUE ...] [--actions JSON]

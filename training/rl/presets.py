@@ -37,10 +37,11 @@ Why straight ahead stops at 3.5 m/s: the camera's single frame does not show how
 is going, and the car needs time to brake (from 4 to 2 m/s, a quarter of a second). With 4 m/s
 the seeds that stalled drove clean laps and then left the track again, update after update,
 at the same place: the greedy car took 4 m/s on the short straight between two bends and reached
-the second at 3.0-4.0 m/s. The same policies with 4 m/s replaced by 3 m/s drove three clean
-laps every time (``bench/bench_stalls.py``). With 3.5 m/s at the top, over 30 seeds: a median
-of 12,316 steps to the goal against 13,896, at most 23,632 against 42,120, laps no slower (a
-median qualifying lap of 5.93 against 6.00 s): README, "Why seeds stall".
+the second at 3.6 m/s (the median). The same policies with 4 m/s replaced by 3 m/s drove three
+clean laps every time (34 of 34 on seeds 0-14, ``bench/bench_stalls.py``). With 3.5 m/s at the
+top, over 30 seeds: a median of 12,316 steps to the goal against 13,896, at most 23,632 against
+42,120, laps no slower (a median qualifying lap of 5.93 against 6.00 s): README, "Why seeds
+stall".
 """
 
 from __future__ import annotations
