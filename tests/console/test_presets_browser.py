@@ -52,7 +52,7 @@ def test_start_from_the_racing_preset_on_two_tracks(page) -> None:
     expect(page.locator("input[name=start_from][value=racing]")).to_be_checked()
     expect(page.locator("#id_name")).to_have_value("two-track-racer")
     expect(page.locator("input[name=action_speed]")).to_have_count(6)
-    expect(page.locator("input[name=action_speed]").first).to_have_value("4")
+    expect(page.locator("input[name=action_speed]").first).to_have_value("3.5")  # the top speed
     expect(page.locator("input[name=action_speed]").last).to_have_value("2")
     expect(page.locator("#id_discount_factor")).to_have_value("0.98")
     expect(page.locator("#id_reward_function")).to_have_value(
