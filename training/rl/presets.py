@@ -8,23 +8,23 @@ in :mod:`training.rewards.examples`, a layer above this one: read them with
 
 Why the racing preset aims at a fast lap and DeepRacer's defaults cannot: at 1.0 m/s at most, a
 lap of re:Invent 2018 (17.7 m along the centre line) takes 17.7 s however well the car learns.
-The racing preset's actions go up to DeepRacer's 4 m/s, each steering angle with the fastest
-speed its tyres hold: the car turns on a circle of radius L / tan(angle) (L = 0.165 m
-wheelbase), and the tyres hold v² / r up to about μg = 9.8 m/s², so 10° allows 3 m/s and 20°
-2 m/s. An action beyond that slides off the track whatever the policy learns; an action space with
-3 m/s at 30° (an earlier version of this preset) learnt to drive round at 1.5 m/s and never went
-under 10.4 s a lap. 20° turns on a circle of 0.45 m. The tightest bend of DeepRacer's 78 track
-files measures 0.33 m along its centre line (Tokyo's training track; the circle through three
-waypoints), but the car has half the track's width to take a bend wider: 0.67 m at least on
-every one of them. So 30° at 1.5 m/s (in this preset until issue 26) is gone: a slow action the
-policy had to learn not to take. Following the centre line pays for staying on the track, not
-for getting round it, so the reward pays speed along the track, anywhere on it (the racing line
-cuts corners), and pays its square: with speed itself a metre paid the same at any speed (the
-reward per step times the steps a metre takes), and only the discount made a faster car worth
-more. A discount of 0.98 weighs about 50 steps (3 simulated seconds) ahead: far enough to brake
-for a bend (from 4 to 2 m/s takes a quarter of a second); 0.999 weighs about 1000 (67 s, several
-laps), so each reward's credit is spread over far more steps and takes more experience to sort
-out.
+The racing preset's actions go up to 3.5 m/s (DeepRacer allows 4: why not, below), each steering
+angle with the fastest speed its tyres hold: the car turns on a circle of radius L / tan(angle)
+(L = 0.165 m wheelbase), and the tyres hold v² / r up to about μg = 9.8 m/s², so 10° allows 3
+m/s and 20° 2 m/s. An action beyond that slides off the track whatever the policy learns; an
+action space with 3 m/s at 30° (an earlier version of this preset) learnt to drive round at 1.5
+m/s and never went under 10.4 s a lap. 20° turns on a circle of 0.45 m. The tightest bend of
+DeepRacer's 78 track files measures 0.33 m along its centre line (Tokyo's training track; the
+circle through three waypoints), but the car has half the track's width to take a bend wider:
+0.67 m at least on every one of them. So 30° at 1.5 m/s (in this preset until issue 26) is gone:
+a slow action the policy had to learn not to take. Following the centre line pays for staying on
+the track, not for getting round it, so the reward pays speed along the track, anywhere on it
+(the racing line cuts corners), and pays its square: with speed itself a metre paid the same at
+any speed (the reward per step times the steps a metre takes), and only the discount made a
+faster car worth more. A discount of 0.98 weighs about 50 steps (3 simulated seconds) ahead: far
+enough to brake for a bend (from 4 to 2 m/s takes a quarter of a second); 0.999 weighs about
+1000 (67 s, several laps), so each reward's credit is spread over far more steps and takes more
+experience to sort out.
 The compact network (4×4 averaging to 40×30, 16 and 16 filters, 128 units) updates in about 0.6
 of the lean network's time and, over 10 seeds, reached the preset's goal in fewer steps (median
 16,408 against 19,208). Minibatches of 32 instead of 64 (twice the gradient steps an update, at
