@@ -46,7 +46,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
-import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # run as a script: its sibling
 
@@ -55,6 +54,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
 
 from training.rl.algorithms import load_model, set_torch_threads  # noqa: E402
 from training.rl.runner import TrainingConfig, evaluation_spec  # noqa: E402
+from training.rollout.greedy import action_probabilities  # noqa: E402
 
 LAPS = bt.EVAL_LAPS
 LOOK_BACK = 15
@@ -122,15 +122,6 @@ def stalled(kept: list[tuple[int, int, bool, bytes]]) -> list[tuple[int, int, by
     return [(it, steps, cp) for it, steps, clean, cp in kept[first + 1 :] if not clean]
 
 
-def probabilities(policy, obs: np.ndarray) -> np.ndarray:
-    """The policy's action probabilities for one observation."""
-    with torch.inference_mode():
-        tensor, _ = policy.obs_to_tensor(obs[None])
-        logits = policy.action_net(policy.mlp_extractor.forward_actor(
-            policy.extract_features(tensor)))  # fmt: skip
-        return torch.softmax(logits, dim=-1)[0].cpu().numpy().astype(np.float64)
-
-
 def drive(
     policy,
     spec,
@@ -146,7 +137,7 @@ def drive(
         obs, _ = env.reset(seed=0)
         recent: list[tuple[float, bool]] = []
         while True:
-            p = probabilities(policy, obs)
+            p = action_probabilities(policy, obs[None])[0].cpu().numpy().astype(np.float64)
             action = int(p.argmax()) if rng is None else int(rng.choice(len(p), p=p / p.sum()))
             action = (replace or {}).get(action, action)
             obs, _, terminated, truncated, info = env.step(action)
@@ -167,14 +158,13 @@ def replay(seed: int, stalls: list[tuple[int, int, bytes]], spec, eval_spec, pre
            samples: int) -> list[Failure]:  # fmt: skip
     actions = preset.actions()
     replace = slower_action(actions)
+    fastest = frozenset(replace)
     venv = DummyVecEnv([lambda: spec.make(lambda params: 0.0)])
     out = []
     for iteration, steps, checkpoint in stalls:
         model = load_model(preset.algorithm, checkpoint, venv, preset.hyperparameters,
                            network=preset.network, seed=seed)  # fmt: skip
         policy = model.policy
-        policy.set_training_mode(False)
-        fastest = frozenset(replace)
         out.append(Failure(
             seed, iteration, steps,
             greedy=drive(policy, eval_spec, fastest=fastest),

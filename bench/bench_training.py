@@ -400,7 +400,7 @@ def described(actions) -> str:
 def racing_setup(args: argparse.Namespace) -> Setup:
     """The racing preset and its goal, with ``args.actions`` where given."""
     preset = RACING
-    if getattr(args, "actions", None):
+    if args.actions:
         preset = dataclasses.replace(RACING, action_space=args.actions)
     return Setup("fast", preset, args.lap_limit)
 

@@ -26,6 +26,12 @@ def greedy_actions(policy: BasePolicy, observations) -> np.ndarray:
                                                                   spaces.Discrete)):  # fmt: skip
         actions, _ = policy.predict(observations, deterministic=True)
         return actions
+    return action_probabilities(policy, observations).argmax(dim=-1).cpu().numpy()
+
+
+def action_probabilities(policy: ActorCriticPolicy, observations) -> torch.Tensor:
+    """The action probabilities (softmax of the logits, one row per observation) of a discrete
+    actor-critic policy for a batch of observations, in evaluation mode and without gradients."""
     if policy.training:
         policy.set_training_mode(False)
     with torch.inference_mode():
@@ -34,7 +40,7 @@ def greedy_actions(policy: BasePolicy, observations) -> np.ndarray:
         if not policy.share_features_extractor:
             features = features[0]
         logits = policy.action_net(policy.mlp_extractor.forward_actor(features))
-        return torch.softmax(logits, dim=-1).argmax(dim=-1).cpu().numpy()
+        return torch.softmax(logits, dim=-1)
 
 
 def export_greedy(policy: BasePolicy) -> dict | None:
