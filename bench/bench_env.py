@@ -31,20 +31,13 @@ from racing.race import RaceConfig, RaceType  # noqa: E402
 from racing.track import Track  # noqa: E402
 
 cv2.setNumThreads(1)
-SHARED = next(
-    (p / "shared" / "tracks" for p in Path(__file__).resolve().parents if (p / "shared").is_dir()),
-    Path(__file__).resolve().parents[2] / "shared" / "tracks",
-)
-"""DeepRacer's track files: the nearest ``shared/tracks`` above this file (checkout or worktree)."""
 
 
 def load_track(name: str) -> Track | str:
+    """A ``.npy`` file's track, or ``name`` as a catalogue id (DeepRacer's tracks are built in)."""
     path = Path(name)
     if path.suffix == ".npy" and path.exists():
         return Track.from_file(path)
-    shared = SHARED / f"{name}.npy"
-    if shared.exists():
-        return Track.from_file(shared)
     return name  # a catalogue id
 
 

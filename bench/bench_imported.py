@@ -8,9 +8,9 @@ fetched once with pip into ``var/cache`` and imported as car archives through
 from scratch for a fixed budget of environment steps (``--steps``) on the same track, with the
 AWS model's action space and a simple progress reward (stay on the track, near the centre line).
 
-Every model drives the same episodes on re:Invent 2018 (``reinvent_base.npy`` from
-``shared/tracks``), both directions, ``--episodes`` per direction from start points spread
-evenly round the lap, with the deterministic policy and training's episode rules (one lap, no
+Every model drives the same episodes on re:Invent 2018 (``reinvent_base``, built in:
+``racing/tracks/deepracer/``), both directions, ``--episodes`` per direction from start points
+spread evenly round the lap, with the deterministic policy and training's episode rules (one lap, no
 resets: an episode ends off track, reversed, immobilized or at the lap). The figures are
 progress and steps, not times: they do not depend on the machine's load.
 
@@ -42,6 +42,7 @@ import torch  # noqa: E402
 from racing.env import RacingEnv  # noqa: E402
 from racing.rules import Status  # noqa: E402
 from racing.track import Track  # noqa: E402
+from racing.tracks import DEEPRACER_DIR  # noqa: E402
 from training.interchange.deepracer import import_car_archive  # noqa: E402
 from training.interchange.tarball import deterministic_tar_gz  # noqa: E402
 from training.rl.checkpoints import load_checkpoint  # noqa: E402
@@ -51,10 +52,7 @@ from training.rl.runner import IterationResult, TrainingConfig, TrainingHooks, t
 from training.rollout.backends import LocalRollouts  # noqa: E402
 from training.rollout.envs import EnvSpec  # noqa: E402
 
-SHARED = next(
-    (p / "shared" / "tracks" for p in ROOT.parents if (p / "shared" / "tracks").is_dir()),
-    ROOT.parent / "shared" / "tracks",
-)
+SHARED = DEEPRACER_DIR  # DeepRacer's track files, built in
 TRACK = "reinvent_base"
 DIRECTIONS = ("ccw", "cw")
 

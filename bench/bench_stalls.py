@@ -16,9 +16,9 @@ checkpoint it evaluated:
 
 For each failure the table gives where it left the track, the car's top speed over the 15
 steps before it left, and how many of those steps took the fastest action. What it showed
-with the preset before (README, "Why seeds stall"): the greedy car took the 4 m/s action on the
-short straight between two bends and arrived at the second one too fast (capped, 34 of 34 drove
-3 clean laps); the camera's single frame does not show the car's speed.
+with the preset before (docs/benchmarks.md, "Why seeds stall"): the greedy car took the 4 m/s
+action on the short straight between two bends and arrived at the second one too fast (capped,
+34 of 34 drove 3 clean laps); the camera's single frame does not show the car's speed.
 
     .venv/bin/python bench/bench_stalls.py [--seeds 12] [--first-seed 0] [--samples 10]
         [--minutes 6] [--track reinvent_base] [--set KEY=VALUE ...] [--actions JSON]

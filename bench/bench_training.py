@@ -33,7 +33,8 @@ after) is printed with them.
         [--target-kl X] [--set KEY=VALUE ...] [--network NAME] [--actions JSON]
 
 A smoke test: ``--seeds 1 --minutes 1``. reinvent_base (DeepRacer's re:Invent 2018 track) is
-read from ``shared/tracks`` next to the repository (never committed); any built-in track works.
+built in (racing/tracks/deepracer/), like every DeepRacer track; any built-in track works, and
+``--tracks-dir`` adds a folder of other track files.
 
 Last line: ``defaults_median_s=… defaults_lap_s=… fast_median_s=… fast_lap_s=… fast_worst_s=…
 best_lap_s=… fast_seed_best_s=… ratio=…``: median seconds to the goal, the median lap of the
@@ -96,6 +97,7 @@ import torch  # noqa: E402
 
 from console.launcher import EmbeddedRedis, Supervisor  # noqa: E402
 from racing.actions import ActionSpaceError, ActionSpec  # noqa: E402
+from racing.tracks import DEEPRACER_DIR, is_builtin  # noqa: E402
 from training.rewards.examples import example_source  # noqa: E402
 from training.rl.algorithms import resolve_device  # noqa: E402
 from training.rl.hyperparams import (  # noqa: E402
@@ -116,10 +118,8 @@ from training.rollout.backends import LocalRollouts, StreamRollouts  # noqa: E40
 from training.rollout.envs import EnvSpec  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = next(
-    (p / "shared" / "tracks" for p in ROOT.parents if (p / "shared" / "tracks").is_dir()),
-    ROOT.parent / "shared" / "tracks",
-)
+SHARED = DEEPRACER_DIR
+"""Where ``--track`` is looked up by default: DeepRacer's track files, built in."""
 EVALUATIONS_IN_A_ROW = 3
 EVAL_LAPS = 3
 MODES = ("lockstep", "streams")
@@ -254,7 +254,8 @@ class SetupSummary:
     seed_best_s: float | None = None
     """The median of each seed's best lap (seeds that drove none left out): where a typical
     seed's fastest lap lies. ``best_lap_s``, the fastest of them all, is one seed's luck: over
-    30 seeds of the racing preset a third drove 5.5 s or less (README, "Faster laps")."""
+    30 seeds of the racing preset a third drove 5.5 s or less (docs/benchmarks.md, "Faster
+    laps")."""
 
 
 def summarise(runs: list[Run], limit_s: float | None = None) -> SetupSummary:
@@ -335,10 +336,10 @@ def device_label(device: torch.device) -> str:
 # ------------------------------------------------------------------------------ running
 def track_spec(track: str, tracks_dir: Path, scratch: Path, preset: Preset) -> EnvSpec:
     """The env a model created in the wizard drives (its EnvSpec defaults), on ``track``; a
-    DeepRacer track file found in ``tracks_dir`` is imported into a scratch catalogue."""
+    track file found in ``tracks_dir`` is imported into a scratch catalogue, unless built in."""
     found = tracks_dir / f"{track}.npy"
     dirs: tuple[str, ...] = ()
-    if found.exists():
+    if found.exists() and not is_builtin(track):
         shutil.copy(found, scratch / found.name)
         dirs = (str(scratch),)
     return EnvSpec(track=track, track_dirs=dirs, action_space=preset.actions())

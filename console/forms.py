@@ -87,7 +87,8 @@ class BucketImportForm(forms.Form):
     endpoint = forms.CharField(
         label="S3 endpoint",
         max_length=255,
-        help_text="host:port of the MinIO or S3 server, e.g. localhost:9000 or s3.amazonaws.com.",
+        help_text="host:port of the MinIO or S3 server, e.g. s3.amazonaws.com or minio.lan:9000 "
+        "(a local or private address only where the operator allows it).",
     )
     bucket = forms.CharField(max_length=63, help_text="DR_LOCAL_S3_BUCKET, e.g. bucket.")
     prefix = forms.CharField(

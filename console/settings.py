@@ -338,7 +338,10 @@ RACECRAFT_LOGIN_RATE = envstr("RACECRAFT_LOGIN_RATE", "10/m")
 RACECRAFT_SIGNUP_RATE = envstr("RACECRAFT_SIGNUP_RATE", "5/h")
 # Race layout pictures (/tracks/<id>/race.png, each drawn on request) per address.
 RACECRAFT_PREVIEW_RATE = envstr("RACECRAFT_PREVIEW_RATE", "300/m")
-for _name in ("RACECRAFT_LOGIN_RATE", "RACECRAFT_SIGNUP_RATE", "RACECRAFT_PREVIEW_RATE"):
+# Imports from a DeepRacer-for-Cloud bucket (each reads a remote server) per user.
+RACECRAFT_BUCKET_IMPORT_RATE = envstr("RACECRAFT_BUCKET_IMPORT_RATE", "20/h")
+for _name in ("RACECRAFT_LOGIN_RATE", "RACECRAFT_SIGNUP_RATE", "RACECRAFT_PREVIEW_RATE",
+              "RACECRAFT_BUCKET_IMPORT_RATE"):  # fmt: skip
     if not re.fullmatch(r"\d+/\d*[smhd]", globals()[_name]):
         raise ImproperlyConfigured(f"{_name}={globals()[_name]!r} is not a rate like 10/m")
 # Rates count per client address. Behind a reverse proxy every request comes from the proxy's
@@ -355,6 +358,22 @@ for _proxy in RACECRAFT_TRUSTED_PROXIES:
             f"RACECRAFT_TRUSTED_PROXIES: {_proxy!r} is not an IP address or network"
         ) from None
 RATELIMIT_IP_META_KEY = "console.throttle.client_ip"
+# Requests the server sends to an address a user typed (the bucket import today) reach only
+# public addresses: never loopback, the LAN, link-local (a cloud's 169.254.169.254 metadata,
+# which holds the instance's credentials) and the like, else any racer could read the server's
+# internal services (training/storage/outbound.py). List here, comma-separated, the host names,
+# addresses or networks that may be reached although they are not public: e.g. the LAN MinIO
+# of a DeepRacer-for-Cloud install (minio.lan, 192.168.1.20, 10.0.0.0/24, localhost). Every
+# racer may then reach them: list only servers meant for that. Empty by default.
+RACECRAFT_OUTBOUND_ALLOW = envlist("RACECRAFT_OUTBOUND_ALLOW")
+for _entry in RACECRAFT_OUTBOUND_ALLOW:
+    try:
+        ipaddress.ip_network(_entry.strip("[]"), strict=False)
+    except ValueError:
+        if not re.fullmatch(r"[A-Za-z0-9_]([A-Za-z0-9_.-]{0,252})", _entry):
+            raise ImproperlyConfigured(
+                f"RACECRAFT_OUTBOUND_ALLOW: {_entry!r} is not a host name, address or network"
+            ) from None
 
 LOGGING = {
     "version": 1,

@@ -20,6 +20,8 @@ from training.services import race_config, track_catalog
 
 __all__ = [
     "PREVIEW_WIDTH_PX",
+    "SOURCE_LABELS",
+    "TrackFilter",
     "TrackPreview",
     "TrackRow",
     "UnknownTrackError",
@@ -28,12 +30,16 @@ __all__ = [
     "track_catalog",
     "track_preview",
     "track_rows",
+    "track_seasons",
 ]
 
 PREVIEW_WIDTH_PX = 480
 """Width of a gallery preview image, pixels."""
 
 DIRECTION_LABELS = {"ccw": "Counter-clockwise", "cw": "Clockwise", "open": "Open (one way)"}
+SOURCE_LABELS = {"racecraft": "Racecraft", "deepracer": "DeepRacer", "imported": "Imported"}
+NO_SEASON = "other"
+"""The season filter's value for tracks whose season is not known."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,6 +48,46 @@ class TrackRow:
 
     info: TrackInfo
     direction_label: str
+
+    @property
+    def season_label(self) -> str:
+        return self.info.season or "Other"
+
+    @property
+    def search_text(self) -> str:
+        """What the search box matches: the name and the id, lower case."""
+        return f"{self.info.name} {self.info.id}".casefold()
+
+
+@dataclass(frozen=True, slots=True)
+class TrackFilter:
+    """The gallery's and the pickers' filters; empty or None fields filter nothing.
+
+    ``query`` matches the name or the id (any case); ``season`` is a season (``"2018"``...) or
+    :data:`NO_SEASON`; lengths and widths are inclusive bounds in metres."""
+
+    query: str = ""
+    season: str = ""
+    direction: str = ""
+    source: str = ""
+    min_length_m: float | None = None
+    max_length_m: float | None = None
+    min_width_m: float | None = None
+    max_width_m: float | None = None
+
+    def matches(self, row: TrackRow) -> bool:
+        info = row.info
+        words = self.query.casefold().split()
+        return (
+            all(word in row.search_text for word in words)
+            and (not self.season or (info.season or NO_SEASON) == self.season)
+            and (not self.direction or info.direction == self.direction)
+            and (not self.source or info.source == self.source)
+            and (self.min_length_m is None or info.length_m >= self.min_length_m)
+            and (self.max_length_m is None or info.length_m <= self.max_length_m)
+            and (self.min_width_m is None or info.width_m >= self.min_width_m)
+            and (self.max_width_m is None or info.width_m <= self.max_width_m)
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,12 +105,25 @@ RACE_CACHE_SIZE = 64
 """Race layouts kept rendered (the last asked for): a wizard's changes ask for a few each."""
 
 
-def track_rows() -> list[TrackRow]:
-    """Every track, in the catalogue's order."""
-    return [
+def track_rows(track_filter: TrackFilter | None = None) -> list[TrackRow]:
+    """Every track, in the catalogue's order; with ``track_filter``, those it matches."""
+    rows = [
         TrackRow(info=info, direction_label=DIRECTION_LABELS.get(info.direction, info.direction))
         for info in track_catalog().list()
     ]
+    if track_filter is None:
+        return rows
+    return [row for row in rows if track_filter.matches(row)]
+
+
+def track_seasons(rows: list[TrackRow]) -> list[tuple[str, str]]:
+    """The season filter's choices for ``rows``: ``(value, label)``, newest first, then the
+    tracks of no known season."""
+    seasons = sorted({row.info.season for row in rows if row.info.season}, reverse=True)
+    choices = [(season, season) for season in seasons]
+    if any(not row.info.season for row in rows):
+        choices.append((NO_SEASON, "Other"))
+    return choices
 
 
 def track_preview(track_id: str) -> TrackPreview:

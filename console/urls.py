@@ -11,6 +11,7 @@
 /api/reward/validate       the reward function's Validate button (JSON)
 /api/openapi.json          the JSON API's OpenAPI description (console/openapi.json)
 /league/                   the league (leaderboard app)
+/help/, /help/<guide>/     the guides in docs/ (console/helpdocs.py)
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from django.urls import include, path, register_converter
 from django.views.generic.base import RedirectView
 
 from console.views import accounts, analysis, api, downloads, model_page, models, pages
+from console.views import help as help_views
 
 
 class TrackIdConverter:
@@ -99,6 +101,9 @@ urlpatterns = [
     path("api/tasks/<str:task_id>", api.background_task, name="background-task"),
     path("api/openapi.json", api.openapi_schema, name="openapi-schema"),
     path("league/", include("leaderboard.urls")),
+    # help: the guides in docs/, rendered
+    path("help/", help_views.help_index, name="help"),
+    path("help/<slug:slug>/", help_views.help_guide, name="help-guide"),
     path("admin/", admin.site.urls),
     # Browsers ask for /favicon.ico on pages without an icon link (the admin's).
     path("favicon.ico", RedirectView.as_view(url=static("img/logo.svg"), permanent=True)),

@@ -21,8 +21,12 @@ from training.sandbox.requirements import LAYER_HELP, layer_active
 
 TAG = "sandbox"
 #: Layers worth a warning when missing even if others cover for them (defence in depth);
-#: the pids cgroup and RLIMIT_NPROC stand in for each other (root vs. other users).
-CORE_LAYERS = ("namespaces", "rlimits", "no_new_privs", "landlock", "seccomp", "cgroup_memory")
+#: the pids cgroup and RLIMIT_NPROC stand in for each other (root vs. other users). Without
+#: the io cgroup a child's reads that miss the page cache are not paced (seccomp only refuses
+#: O_DIRECT).
+CORE_LAYERS = (
+    "namespaces", "rlimits", "no_new_privs", "landlock", "seccomp", "cgroup_memory", "cgroup_io",
+)  # fmt: skip
 
 
 @lru_cache(maxsize=1)

@@ -7,6 +7,7 @@ static/js/reward_editor.js shows the progress and posts the form again once it p
 
 from __future__ import annotations
 
+from django.conf import settings
 from django.contrib import messages
 from django.contrib.auth.decorators import login_required
 from django.http import HttpRequest, HttpResponse
@@ -14,6 +15,7 @@ from django.shortcuts import redirect, render
 from django.urls import reverse
 from django.views.decorators.debug import sensitive_post_parameters, sensitive_variables
 from django.views.decorators.http import require_http_methods, require_safe
+from django_ratelimit.core import is_ratelimited
 
 from console import tracks
 from console.forms import BucketImportForm, CloneForm, ImportForm, RewardForm
@@ -224,6 +226,10 @@ def model_import_bucket(request: HttpRequest) -> HttpResponse:
     the same way (training/services/bucket_imports.py). The keys live only in this request:
     never stored, queued or logged, and hidden from Django's error reports."""
     form = BucketImportForm(request.POST)
+    if bucket_imports_limited(request):
+        form.is_valid()  # the fields as posted, shown again
+        form.add_error(None, TOO_MANY_BUCKET_IMPORTS)
+        return _import_page(request, ImportForm(), form, status=429)
     if form.is_valid():
         task_id, _ = attempt_on_form(
             form,
@@ -236,13 +242,27 @@ def model_import_bucket(request: HttpRequest) -> HttpResponse:
     return _import_page(request, ImportForm(), form)
 
 
+TOO_MANY_BUCKET_IMPORTS = "Too many imports from a bucket; wait a while and try again."
+
+
+def bucket_imports_limited(request: HttpRequest) -> bool:
+    """Whether this user posted more bucket imports than RACECRAFT_BUCKET_IMPORT_RATE (each
+    makes the server read a remote server: not a thing to do in a loop)."""
+    return is_ratelimited(request, group="bucket-import", key="user",
+                          rate=settings.RACECRAFT_BUCKET_IMPORT_RATE, method="POST",
+                          increment=True)  # fmt: skip
+
+
 def _import_page(
-    request: HttpRequest, form: ImportForm, bucket_form: BucketImportForm
+    request: HttpRequest,
+    form: ImportForm,
+    bucket_form: BucketImportForm,
+    status: int | None = None,
 ) -> HttpResponse:
     task = request.GET.get("task", "")
     poll = reverse("background-task", args=[task]) if task.isalnum() else ""
     bound = [f for f in (form, bucket_form) if f.is_bound]
-    status = 400 if any(f.errors for f in bound) else 200
+    status = status or (400 if any(f.errors for f in bound) else 200)
     context = {"nav": "models", "form": form, "bucket_form": bucket_form, "task_poll": poll}
     return render(request, "models/import.html", context, status=status)
 

@@ -18,6 +18,7 @@ from console.forms import (
     track_upload_keep,
 )
 from console.race_form import RaceLayoutForm, TrackLayoutForm
+from console.track_filters import TrackFilterForm
 from training import services
 
 
@@ -33,8 +34,12 @@ def track_gallery(request: HttpRequest) -> HttpResponse:
 def _gallery(
     request: HttpRequest, form: TrackUploadForm, status: int = 200, **extra
 ) -> HttpResponse:  # noqa: E501
-    rows = tracks.track_rows()
-    choices = [(r.info.id, r.info.name) for r in rows]
+    every = tracks.track_rows()
+    choices = [(r.info.id, r.info.name) for r in every]
+    sent = any(key.startswith("f-") for key in request.GET)  # the search and filter form
+    filter_form = TrackFilterForm(request.GET if sent else None, rows=every, prefix="f")
+    track_filter = filter_form.track_filter()
+    rows = every if track_filter is None else [r for r in every if track_filter.matches(r)]
     layout_src = ""
     if "race_type" in request.GET:  # the race layout form was sent (GET: a page to link to)
         layout = TrackLayoutForm(request.GET, track_choices=choices)
@@ -60,8 +65,9 @@ def _gallery(
         extra.setdefault("jump", "layout")
     else:
         layout = TrackLayoutForm(track_choices=choices)
-    context = {"nav": "tracks", "rows": rows, "upload_form": form, "layout_form": layout,
-               "layout_src": layout_src, **extra}  # fmt: skip
+    context = {"nav": "tracks", "rows": rows, "total": len(every), "filter_form": filter_form,
+               "upload_form": form, "layout_form": layout, "layout_src": layout_src,
+               **extra}  # fmt: skip
     return render(request, "tracks.html", context, status=status)
 
 

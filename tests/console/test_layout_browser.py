@@ -46,7 +46,9 @@ pytestmark = [
 OVERLAPS_JS = """
 (selectors) => {
   // What shows of an element: its box clipped by every ancestor that scrolls or clips it (a wide
-  // table inside a card that scrolls sideways is fine; the card must fit).
+  // table inside a card that scrolls sideways is fine; the card must fit), on both axes (a
+  // scroll box's options scrolled out of it are not drawn; a box that scrolls one axis clips
+  // both).
   const visible = (el) => {
     let r = el.getBoundingClientRect();
     let box = { left: r.left, right: r.right, top: r.top, bottom: r.bottom };
@@ -55,7 +57,7 @@ OVERLAPS_JS = """
       if (o === "auto" || o === "scroll" || o === "hidden") {
         const q = p.getBoundingClientRect();
         box = { left: Math.max(box.left, q.left), right: Math.min(box.right, q.right),
-                top: box.top, bottom: box.bottom };
+                top: Math.max(box.top, q.top), bottom: Math.min(box.bottom, q.bottom) };
       }
     }
     box.width = box.right - box.left;

@@ -6,12 +6,13 @@ from __future__ import annotations
 import base64
 import io
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 from django.core.files.uploadedfile import SimpleUploadedFile
 
-from racing.tracks import MAX_TRACK_FILE_BYTES, TrackCatalog
+from racing.tracks import DEEPRACER_DIR, MAX_TRACK_FILE_BYTES, TrackCatalog
 
 pytestmark = pytest.mark.django_db
 
@@ -130,14 +131,19 @@ def test_a_kept_file_is_its_owners_only(alice_client, charlie_client, tracks_dir
     [
         (b"", "", "Choose a DeepRacer .npy track file"),
         (b"not a numpy file at all", "junk", ""),
-        (None, "racecraft_oval", "exists already"),
+        (None, "racecraft_oval", "is the id of a built-in track"),
+        (None, "RACECRAFT_OVAL", "differs only in case from the built-in track"),
+        (None, "Reinvent_Base", "differs only in case from the built-in track"),
         (None, "bad id!", "track id"),
+        (DEEPRACER_DIR / "reinvent_base.npy", "my_copy", "track, built in as"),
     ],
 )
 def test_bad_uploads_are_refused_and_nothing_is_written(alice_client, tracks_dir, data,
                                                         track_id, text) -> None:  # fmt: skip
     body = {"track_id": track_id, "import": "1"}
     if data != b"":
+        if isinstance(data, Path):
+            data = data.read_bytes()
         body["file"] = _upload(_npy() if data is None else data)
     response = alice_client.post("/tracks/import/", body)
     page = response.content.decode()
@@ -145,6 +151,20 @@ def test_bad_uploads_are_refused_and_nothing_is_written(alice_client, tracks_dir
     assert text in page
     assert not list(tracks_dir.glob("*.npy")) and not list(tracks_dir.glob("*.json"))
     assert not [p for p in tracks_dir.glob(".upload-*")]  # no scratch left behind
+
+
+def test_an_id_differing_only_in_case_from_an_imported_track_is_refused(
+    alice_client, tracks_dir
+) -> None:
+    first = alice_client.post("/tracks/import/", {"file": _upload(_npy()), "track_id": "My_Oval",
+                                                  "import": "1"})  # fmt: skip
+    assert first.status_code == 302
+    again = alice_client.post("/tracks/import/", {"file": _upload(_npy()), "track_id": "my_oval",
+                                                  "import": "1"})  # fmt: skip
+    page = again.content.decode()
+    assert again.status_code == 400
+    assert "differs only in case from the track" in page and "My_Oval" in page
+    assert sorted(p.name for p in tracks_dir.glob("*.npy")) == ["My_Oval.npy"]
 
 
 def test_importing_needs_an_account(client, tracks_dir) -> None:

@@ -5,7 +5,7 @@ AWS's issue #87: with ~38 jobs queued, users' jobs waited while capacity sat idl
 Each job's body is a stand-in that holds its slot for ``JOB_S`` seconds
 (tests/faults/standin_jobs.py); what is tested is everything around it: the quota, the tasks
 in the broker, the slot that takes a task running the fairest job and swapping tokens, and the
-completion. ``pytest -s`` prints the figures the README quotes."""
+completion. ``pytest -s`` prints the figures docs/operator.md quotes."""
 
 from __future__ import annotations
 

@@ -1,27 +1,25 @@
-"""Fixtures for the simulator's tests: real DeepRacer tracks from ../shared/tracks when present."""
+"""Fixtures for the simulator's tests: DeepRacer's tracks, built in (racing/tracks/deepracer/)."""
 
 from __future__ import annotations
 
 import pytest
-from shared_tracks import SHARED_TRACKS
 
 from racing.track import Track
+from racing.tracks import DEEPRACER_DIR
 
 
-def shared_track(name: str) -> Track:
-    path = SHARED_TRACKS / f"{name}.npy"
-    if not path.exists():
-        pytest.skip(f"{path} is not present (DeepRacer track files live outside the repo)")
-    return Track.from_file(path)
+def deepracer_track(name: str) -> Track:
+    """The built-in DeepRacer track file ``name`` (its stem); a missing one fails the test."""
+    return Track.from_file(DEEPRACER_DIR / f"{name}.npy")
 
 
 @pytest.fixture(scope="session")
 def reinvent() -> Track:
     """DeepRacer's re:Invent 2018 track (reinvent_base), native counter-clockwise direction."""
-    return shared_track("reinvent_base")
+    return deepracer_track("reinvent_base")
 
 
 @pytest.fixture(scope="session")
 def load_shared():
-    """A loader for any file of ../shared/tracks by stem (the test skips when it is absent)."""
-    return shared_track
+    """A loader for any built-in DeepRacer track file by stem."""
+    return deepracer_track

@@ -11,8 +11,8 @@ from racing.rules import RaceRules
 from racing.tracks import TrackCatalog
 
 CONTINUOUS = {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 4}}
-SHIPPED = [info.id for info in TrackCatalog().list()]
-SHARED = ["reinvent_base", "Oval_track", "2022_reinvent_champ"]
+SHIPPED = [info.id for info in TrackCatalog().list() if info.source == "racecraft"]
+SHARED = ["reinvent_base", "Oval_track", "2022_reinvent_champ"]  # of DeepRacer's, built in too
 
 
 def three_laps(track, direction: str, action_space=CONTINUOUS) -> list[float]:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from shared_tracks import SHARED_TRACKS
 
 from racing.drawing import BOT_RGB, BOX_RGB
 from racing.preview import (
@@ -18,7 +17,7 @@ from racing.preview import (
 )
 from racing.race import RaceConfig
 from racing.track import Track
-from racing.tracks import TrackCatalog
+from racing.tracks import DEEPRACER_DIR, TrackCatalog
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -103,13 +102,7 @@ def test_every_builtin_track_renders(track_id: str) -> None:
 
 
 def test_open_route_renders() -> None:
-    path = SHARED_TRACKS / "Straight_track.npy"
-    if path.is_file():
-        track = Track.from_file(path)
-    else:
-        xs = np.linspace(0.0, 5.0, 21)
-        rows = np.stack([xs, xs * 0, xs, xs * 0 + 0.3, xs, xs * 0 - 0.3], axis=1)
-        track = Track.from_array(rows)
+    track = Track.from_file(DEEPRACER_DIR / "Straight_track.npy")
     image = decode(render_preview_png(track, width_px=300))
     assert image.shape[1] == 300
     assert len(arrow_pixels(image)) > 10

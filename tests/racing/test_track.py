@@ -1,53 +1,41 @@
 """Track: loading DeepRacer files, refusing bad input, and the geometry the simulator relies on.
 
-The DeepRacer track files are read from ``../shared/tracks`` beside the repository when that
-folder exists (never copied into the repository); those tests skip when it is absent.
+The DeepRacer track files are the built-in ones (racing/tracks/deepracer/), checked against
+their manifest: the waypoint counts come from the independent index made when they were
+copied, the lengths, widths and directions are what the catalogue lists without loading.
 """
 
 from __future__ import annotations
 
 import io
 import math
-import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 from shapely.geometry import Point, Polygon
-from shared_tracks import SHARED_TRACKS
 
 from racing.track import MIN_DISTINCT_POINTS, Track, TrackError
-from racing.tracks import BUILTIN_DIR, MAX_TRACK_FILE_BYTES, import_track
+from racing.tracks import (
+    BUILTIN_DIR,
+    DEEPRACER_DIR,
+    MAX_TRACK_FILE_BYTES,
+    deepracer_manifest,
+    import_track,
+)
 
-SHARED_FILES = sorted(SHARED_TRACKS.glob("*.npy")) if SHARED_TRACKS.is_dir() else []
+SHARED_FILES = sorted(DEEPRACER_DIR.glob("*.npy"))
 BUILTIN_IDS = ["racecraft_summit", "racecraft_oval", "racecraft_technical"]
-
-needs_shared = pytest.mark.skipif(not SHARED_FILES, reason=f"{SHARED_TRACKS} not present")
 
 
 def shared_params() -> list:
-    if not SHARED_FILES:
-        return [pytest.param(None, marks=pytest.mark.skip(reason=f"{SHARED_TRACKS} not present"))]
     return [pytest.param(p, id=p.stem) for p in SHARED_FILES]
 
 
-def parse_index() -> dict[str, dict[str, str]]:
-    """The rows of INDEX.md's main table, by file name, keyed by column header."""
-    text = (SHARED_TRACKS / "INDEX.md").read_text()
-    section = text.split("\n## Table\n", 1)[1].split("\n## ", 1)[0]
-    lines = [ln for ln in section.splitlines() if ln.startswith("|")]
-    header = [c.strip() for c in lines[0].strip("|").split("|")]
-    rows = {}
-    for line in lines[2:]:
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        row = dict(zip(header, cells, strict=True))
-        rows[row["File"].strip("`")] = row
-    return rows
-
-
 @pytest.fixture(scope="module")
-def index() -> dict[str, dict[str, str]]:
-    return parse_index()
+def index() -> dict[str, dict]:
+    """The manifest's entries by file name."""
+    return {f"{k}.npy": v for k, v in deepracer_manifest().items()}
 
 
 def ring(n: int = 48, radius: float = 2.0, width: float = 0.6) -> np.ndarray:
@@ -65,21 +53,20 @@ def npy(array: np.ndarray, allow_pickle: bool = False) -> bytes:
 
 
 # ------------------------------------------------------------------ (a) the DeepRacer files
-@needs_shared
-def test_index_lists_every_shared_file(index: dict[str, dict[str, str]]) -> None:
+def test_index_lists_every_shared_file(index: dict[str, dict]) -> None:
+    assert len(SHARED_FILES) == 78
     assert sorted(index) == sorted(p.name for p in SHARED_FILES)
 
 
 @pytest.mark.parametrize("path", shared_params())
-def test_shared_file_matches_index(path: Path, index: dict[str, dict[str, str]]) -> None:
+def test_shared_file_matches_index(path: Path, index: dict[str, dict]) -> None:
     row = index[path.name]
     track = Track.from_file(path)
-    assert track.length == pytest.approx(float(row["Centre length (m)"]), abs=0.01)
-    assert track.width == pytest.approx(float(row["Width perp. (m)"]), abs=0.005)
-    assert track.direction == row["Dir"].lower()
-    assert track.closed == (row["Closed"] == "yes")
-    distinct = int(re.fullmatch(r"\d+ \((\d+)\)", row["Waypoints"]).group(1))
-    assert track.num_waypoints == distinct  # closing row and consecutive duplicates dropped
+    assert track.length == pytest.approx(row["length_m"], abs=0.005)
+    assert track.width == pytest.approx(row["width_m"], abs=0.0005)
+    assert track.direction == row["direction"]
+    assert track.closed == row["closed"]
+    assert track.num_waypoints == row["waypoints"]  # closing row, consecutive duplicates dropped
     assert track.track_id == path.stem
 
 
@@ -236,9 +223,7 @@ def test_open_route_has_one_direction() -> None:
 # ------------------------------------------------------------------ (c) geometry
 def geometry_params() -> list:
     params = [pytest.param(BUILTIN_DIR / f"{i}.npy", id=i) for i in BUILTIN_IDS]
-    base = SHARED_TRACKS / "reinvent_base.npy"
-    marks = () if base.is_file() else pytest.mark.skip(reason=f"{base} not present")
-    params.append(pytest.param(base, id="reinvent_base", marks=marks))
+    params.append(pytest.param(DEEPRACER_DIR / "reinvent_base.npy", id="reinvent_base"))
     return params
 
 
@@ -356,7 +341,6 @@ def test_duplicate_start_and_end_of_an_open_route() -> None:
     assert not track.closed
 
 
-@needs_shared
 def test_shared_duplicates_leave_no_zero_length_segments() -> None:
     for path in SHARED_FILES:
         track = Track.from_file(path)

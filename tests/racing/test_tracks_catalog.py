@@ -7,12 +7,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from shared_tracks import SHARED_TRACKS
 
 from racing.track import Track, TrackError
-from racing.tracks import BUILTIN_DIR, TrackCatalog, UnknownTrackError, import_track
+from racing.tracks import (
+    BUILTIN_DIR,
+    DEEPRACER_DIR,
+    TrackCatalog,
+    UnknownTrackError,
+    import_track,
+)
 
-OVAL_TRACK = SHARED_TRACKS / "Oval_track.npy"
+OVAL_TRACK = DEEPRACER_DIR / "Oval_track.npy"
 
 BUILTIN = {
     # id: (name, length range m, width m)
@@ -43,7 +48,7 @@ def test_catalog_lists_the_builtin_tracks() -> None:
 def test_catalog_json_and_files_agree() -> None:
     names = json.loads((BUILTIN_DIR / "catalog.json").read_text())
     files = {p.stem for p in BUILTIN_DIR.glob("*.npy")}
-    assert set(names) == files == set(BUILTIN)
+    assert set(names) == files == set(BUILTIN)  # DeepRacer's live in deepracer/
     for entry in names.values():
         assert set(entry) == {"name", "description"}
         assert entry["name"] and entry["description"]
@@ -65,23 +70,26 @@ def test_load_unknown_id_raises() -> None:
     assert str(UnknownTrackError("x")) == "unknown track 'x'"
 
 
-@pytest.mark.skipif(not OVAL_TRACK.is_file(), reason=f"{OVAL_TRACK} not present")
 def test_import_a_deepracer_file(tmp_path: Path) -> None:
-    info = import_track(
-        OVAL_TRACK.read_bytes(), track_id="Oval_track", dest_dir=tmp_path, name="Oval Track"
-    )
-    assert info.source == "imported"
-    assert info.name == "Oval Track"
+    # DeepRacer's Oval Track moved 1 m along x: a DeepRacer-format file that is not built in.
+    moved = np.load(OVAL_TRACK) + np.array([1.0, 0.0] * 3)
+    path = tmp_path / "moved.npy"
+    np.save(path, moved)
+    lib = tmp_path / "lib"
+    info = import_track(path.read_bytes(), track_id="my_oval", dest_dir=lib, name="My Oval")
+    assert info.source == "imported" and not info.same_as
+    assert info.name == "My Oval"
     assert info.length_m == pytest.approx(19.55, abs=0.01)
     assert info.width_m == pytest.approx(0.609, abs=0.005)
     assert info.direction == "ccw"
-    catalog = TrackCatalog([tmp_path])
-    assert "Oval_track" in catalog.ids()
+    catalog = TrackCatalog([lib])
+    assert "my_oval" in catalog.ids()
     listed = {i.id: i for i in catalog.list()}
-    assert listed["Oval_track"].source == "imported"
+    assert listed["my_oval"].source == "imported"
     assert listed["racecraft_oval"].source == "racecraft"
-    assert catalog.load("Oval_track").length == pytest.approx(19.55, abs=0.01)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["Oval_track.json", "Oval_track.npy"]
+    assert listed["Oval_track"].source == "deepracer"
+    assert catalog.load("my_oval").length == pytest.approx(19.55, abs=0.01)
+    assert sorted(p.name for p in lib.iterdir()) == ["my_oval.json", "my_oval.npy"]
 
 
 def test_import_stores_a_clean_copy(tmp_path: Path) -> None:
@@ -147,11 +155,11 @@ def test_broken_imported_file_is_skipped(tmp_path: Path) -> None:
     catalog = TrackCatalog([tmp_path])
     ids = {info.id for info in catalog.list()}
     assert "broken" not in ids and "tiny" not in ids
-    assert set(BUILTIN) <= ids
+    assert set(BUILTIN) <= ids and "reinvent_base" in ids
     with pytest.raises(TrackError):
         catalog.load("broken")
 
 
 def test_missing_import_folder_is_fine(tmp_path: Path) -> None:
     catalog = TrackCatalog([tmp_path / "nowhere"])
-    assert set(catalog.ids()) == set(BUILTIN)
+    assert set(catalog.ids()) == set(BUILTIN) | {p.stem for p in DEEPRACER_DIR.glob("*.npy")}

@@ -13,8 +13,9 @@ a Racecraft checkpoint, an SB3 ``model/<name>.zip`` (the one ``deepracer_checkpo
 names best, else last, through ``racecraft_checkpoint`` where the name is DeepRacer's
 checkpoint, else ``best.zip``/``last.zip``/the only one). The checkpoint must load for the
 metadata's algorithm, network, camera and action space
-(:func:`training.rl.checkpoints.load_checkpoint`; nothing in it is unpickled) and is returned
-re-saved by Racecraft. DeepRacer's TensorFlow checkpoints are not read here (the DeepRacer
+(:func:`training.rl.checkpoints.load_checkpoint`; nothing in it is unpickled), its weights
+must all be finite numbers (a NaN or an infinity is refused naming the weight), and it is
+returned re-saved by Racecraft. DeepRacer's TensorFlow checkpoints are not read here (the DeepRacer
 import, :mod:`training.interchange.deepracer`, reads them). Every failure is an
 :class:`ArchiveError` naming the file.
 """
@@ -35,6 +36,8 @@ from typing import BinaryIO
 
 from training.interchange.carmodel import RACECRAFT_NETWORK_KEY
 from training.interchange.export import CheckpointError, checkpoint_bytes, load_checkpoint
+from training.interchange.integrity import first_non_finite
+from training.interchange.policybuild import model_weights
 from training.rl.hyperparams import HyperparameterError, Hyperparameters, parse_hyperparameters
 from training.rl.metadata import MetadataError, ModelMetadata, parse_metadata
 from training.rl.policies import NETWORKS
@@ -361,6 +364,12 @@ def virtual_model(files: Mapping[str, bytes]) -> ImportedModel:
         model = load_checkpoint(files[ckpt_name], metadata)
     except CheckpointError as exc:
         raise ArchiveError(f"{ckpt_name}: {exc}") from None
+    bad = first_non_finite(model_weights(model))
+    if bad is not None:
+        raise ArchiveError(
+            f"{ckpt_name}: the weight {bad[0]!r} holds {bad[1]}; a model's weights must be "
+            "finite numbers"
+        )
     used = {meta_name, hp_name, reward_name, ckpt_name}
     extra = {
         name: data

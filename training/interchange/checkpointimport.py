@@ -1,18 +1,20 @@
 """A DeepRacer TensorFlow checkpoint read into the matching Racecraft torch policy.
 
 A checkpoint holds variables, not the graph: its tensors are laid out as
-:mod:`training.interchange.graphimport` reads a graph's layers and built the same way.
+:mod:`training.interchange.graphimport` reads a graph's layers and built the same way. Every
+tensor the policy is built from must hold finite numbers (:class:`FiniteTensors`).
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from training.interchange.carmodel import output_name
+from training.interchange.integrity import non_finite
 from training.interchange.policybuild import (
     GraphImportError,
     Layer,
@@ -25,6 +27,32 @@ from training.rl.metadata import ModelMetadata
 from training.rl.policies import SPECS
 
 
+class FiniteTensors(Mapping[str, np.ndarray]):
+    """A checkpoint's tensors, each refused when it is read if it holds a NaN or an infinity
+    (:class:`GraphImportError` naming the tensor); the tensors never read are not looked at."""
+
+    def __init__(self, tensors: Mapping[str, np.ndarray]) -> None:
+        self._tensors = tensors
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        array = self._tensors[name]
+        found = non_finite(array)
+        if found is not None:
+            raise GraphImportError(
+                f"the tensor {name!r} holds {found}; a model's weights must be finite numbers"
+            )
+        return array
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._tensors
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._tensors)
+
+    def __len__(self) -> int:
+        return len(self._tensors)
+
+
 def policy_from_checkpoint(
     tensors: Mapping[str, np.ndarray], metadata: ModelMetadata
 ) -> tuple[BaseAlgorithm, ModelMetadata]:
@@ -35,10 +63,11 @@ def policy_from_checkpoint(
     network's ``<SENSOR>/Conv2d_<n>/kernel|bias`` (strides from the matching network of
     :data:`training.rl.policies.SPECS`), ``middleware_fc_embedder/Dense_0`` and the one dense
     layer of its head, on images divided by 255. Raises :class:`GraphImportError` (for a
-    malformed tensor too, with the reason).
+    malformed tensor too, with the reason, and for a tensor read that holds a NaN or an
+    infinity), or :class:`CheckpointFormatError` (a tensor that fails its checksum).
     """
     with refusing_bad_values("checkpoint", passing=(CheckpointFormatError,)):
-        return _policy(tensors, metadata)
+        return _policy(FiniteTensors(tensors), metadata)
 
 
 def _policy(

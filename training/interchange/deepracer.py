@@ -165,9 +165,10 @@ def _from_checkpoint(
 ) -> tuple[ModelMetadata, bytes]:
     prefix = index_name.removesuffix(".index")
     pattern = re.compile(rf"{re.escape(prefix)}\.data-(\d+)-of-\d+")
-    shards = {int(m.group(1)): data for n, data in files.items() if (m := pattern.fullmatch(n))}
+    found = {int(m.group(1)): n for n in files if (m := pattern.fullmatch(n))}
+    shards = {shard: files[name] for shard, name in found.items()}
     try:
-        tensors = read_checkpoint(files[index_name], shards)
+        tensors = read_checkpoint(files[index_name], shards, found)
         model, metadata = policy_from_checkpoint(tensors, metadata)
     except (CheckpointFormatError, GraphImportError) as exc:
         raise ArchiveError(f"{index_name}: {exc}") from None

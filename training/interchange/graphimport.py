@@ -12,6 +12,7 @@ nothing is executed but numpy arithmetic. Finally the torch policy and the graph
 (:func:`training.interchange.tfgraph.run_graph`) are run on probe images and must agree, so a
 graph that computes something else is refused rather than imported wrong. With a LIDAR in the
 metadata's sensors the graph must have Racecraft's camera + LIDAR layout (:func:`_read_lidar`).
+Every weight read must be a finite number: a NaN or an infinity is refused naming its constant.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from training.interchange.carmodel import CAMERA_HEIGHT, CAMERA_WIDTH, input_name, output_name
 from training.interchange.export import BoxPolicy, DiscretePolicy
+from training.interchange.integrity import non_finite
 from training.interchange.policybuild import (
     GraphImportError,
     Layer,
@@ -73,14 +75,21 @@ def _path_nodes(graph, source: str, target: str) -> list:
 
 
 def _weight(nodes: dict, name: str) -> np.ndarray:
-    """The Const behind ``name``, through Identity (``kernel/read``) nodes."""
+    """The Const behind ``name``, through Identity (``kernel/read``) nodes. Raises
+    :class:`GraphImportError` when it is not a constant or holds a NaN or an infinity."""
     node = nodes[name.split(":")[0]]
     while node.op == "Identity":
         node = nodes[node.input[0].split(":")[0]]
     try:
-        return const_value(node).astype(np.float32)
+        value = const_value(node).astype(np.float32)
     except GraphError as exc:
         raise GraphImportError(f"a weight is not a constant ({exc})") from None
+    found = non_finite(value)
+    if found is not None:
+        raise GraphImportError(
+            f"the constant {node.name!r} holds {found}; a model's weights must be finite numbers"
+        )
+    return value
 
 
 def _read_layers(graph, source: str, target: str) -> NetworkLayers:

@@ -2,7 +2,8 @@
 
 :class:`NetworkLayers` is what :mod:`training.interchange.graphimport` and
 :mod:`training.interchange.checkpointimport` read; :func:`build_policy` picks the network of
-:data:`training.rl.policies.SPECS` whose shapes they have and copies the weights in.
+:data:`training.rl.policies.SPECS` whose shapes they have and copies the weights in, and
+refuses a policy whose weights are not all finite once built (:func:`model_weights`).
 :func:`refusing_bad_values` turns what a malformed upload makes numpy or torch raise (a
 missing attribute, a shape that does not fit) into a :class:`GraphImportError` with its reason.
 """
@@ -21,6 +22,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from torch import nn
 
 from training.interchange.carmodel import CAMERA_HEIGHT, CAMERA_WIDTH, RACECRAFT_NETWORK_KEY
+from training.interchange.integrity import first_non_finite
 from training.rl.checkpoints import new_model
 from training.rl.metadata import ModelMetadata
 from training.rl.policies import DIRECT_HEADS, SPECS
@@ -173,9 +175,22 @@ def build_policy(
     extra = {k: v for k, v in metadata.extra.items() if k != RACECRAFT_NETWORK_KEY}
     metadata = dataclasses.replace(metadata, neural_network=network, extra=extra)
     model = new_model(metadata)
-    with torch.no_grad():
-        _load(model, found, metadata)
+    with torch.no_grad(), np.errstate(over="ignore", invalid="ignore"):
+        _load(model, found, metadata)  # an overflow is reported just below, with its weight
+    bad = first_non_finite(model_weights(model))
+    if bad is not None:  # finite weights that overflow float32 once the input scaling is folded
+        raise GraphImportError(
+            f"the policy's {bad[0]} holds {bad[1]} once built: the weights or the input "
+            "scaling are too large for float32"
+        )
     return model, metadata
+
+
+def model_weights(model: BaseAlgorithm) -> Iterator[tuple[str, np.ndarray]]:
+    """Every parameter of ``model``'s policy (its value function and critics included), by its
+    torch name, as a numpy array."""
+    for name, parameter in model.policy.named_parameters():
+        yield name, parameter.detach().cpu().numpy()
 
 
 @contextmanager

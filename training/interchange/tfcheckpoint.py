@@ -10,6 +10,12 @@ uncompressed; a compressed block is refused. The message class is declared here 
 TensorFlow's ``tensor_bundle.proto`` field numbers (tensorboard's protos lack that file) on top
 of tensorboard's ``TensorShapeProto``; nothing is unpickled or executed.
 
+What is read is checked against the checksums the file records
+(:func:`~training.interchange.integrity.masked_crc32c`): every block of the index as it is read
+(its type byte and masked CRC-32C), and every tensor's bytes when the tensor is read (the
+``crc32c`` of its ``BundleEntryProto``), as TensorFlow's ``BundleReader`` does; a flipped byte
+or a wrong recorded sum is a :class:`CheckpointFormatError` naming the tensor and the file.
+
 :func:`write_checkpoint` writes one shard as TensorFlow's ``BundleWriter`` does (the bundle
 header under the empty key, entries in key order with the masked CRC-32C of each tensor's bytes,
 256 KiB data blocks with a restart every 16 entries, an index block of one restart per entry,
@@ -22,7 +28,6 @@ from __future__ import annotations
 import struct
 from collections.abc import Iterator, Mapping
 
-import google_crc32c
 import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from tensorboard.compat.proto import tensor_shape_pb2, types_pb2
@@ -33,6 +38,7 @@ from training.interchange.graphbudget import (
     MAX_RANK,
     MAX_TENSOR_VALUES,
 )
+from training.interchange.integrity import masked_crc32c
 
 TABLE_MAGIC = 0xDB4775248B80FB57
 FOOTER_BYTES = 48
@@ -91,11 +97,18 @@ def _varint(data: bytes, pos: int) -> tuple[int, int]:
 
 
 def _block(data: bytes, handle: bytes) -> bytes:
-    """The block a ``BlockHandle`` (offset, size) points at, checked uncompressed."""
+    """The block a ``BlockHandle`` (offset, size) points at, checked uncompressed and against
+    the masked CRC-32C of its contents and type byte that follows it."""
     offset, pos = _varint(handle, 0)
     size, _ = _varint(handle, pos)
     if offset + size + 5 > len(data):
         raise CheckpointFormatError("a block lies outside the index file")
+    (recorded,) = struct.unpack_from("<I", data, offset + size + 1)
+    if masked_crc32c(memoryview(data)[offset : offset + size + 1]) != recorded:
+        raise CheckpointFormatError(
+            f"the index file is damaged: the block at byte {offset:,} does not match its "
+            "recorded CRC-32C"
+        )
     if data[offset + size] != 0:
         raise CheckpointFormatError("compressed index blocks are not supported")
     return data[offset : offset + size]
@@ -167,13 +180,21 @@ class CheckpointTensors(Mapping[str, np.ndarray]):
     """A checkpoint's float32/int32 tensors by name, each read from its shard on first use.
 
     Every entry was checked when the index was read (shape, bound, shard, bytes in range);
-    the values read in all are bounded by
+    a tensor's bytes are checked against the CRC-32C its entry records when it is read; the
+    values read in all are bounded by
     :data:`~training.interchange.graphbudget.MAX_GRAPH_VALUES` (a checkpoint also holds Adam
-    slots and target copies the import never reads). Raises :class:`CheckpointFormatError`.
+    slots and target copies the import never reads, nor checksums). Raises
+    :class:`CheckpointFormatError`.
     """
 
-    def __init__(self, entries: dict[str, tuple], shards: Mapping[int, bytes]) -> None:
+    def __init__(
+        self,
+        entries: dict[str, tuple],
+        shards: Mapping[int, bytes],
+        shard_names: Mapping[int, str] | None = None,
+    ) -> None:
         self._entries, self._shards = entries, shards
+        self._names = shard_names or {}
         self._read: dict[str, np.ndarray] = {}
         self._values = 0
 
@@ -187,7 +208,13 @@ class CheckpointTensors(Mapping[str, np.ndarray]):
                 f"(at {name!r}); a DeepRacer model has at most {MAX_GRAPH_VALUES:,}"
             )
         self._values += count
-        raw = self._shards[entry.shard_id][entry.offset : entry.offset + entry.size]
+        raw = memoryview(self._shards[entry.shard_id])[entry.offset : entry.offset + entry.size]
+        if masked_crc32c(raw) != entry.crc32c:
+            shard = self._names.get(entry.shard_id, f"data shard {entry.shard_id}")
+            raise CheckpointFormatError(
+                f"the tensor {name!r} does not match the CRC-32C its index records: "
+                f"{shard} is damaged"
+            )
         array = np.frombuffer(raw, dtype).reshape(shape).astype(dtype.newbyteorder("="))
         self._read[name] = array
         return array
@@ -199,10 +226,14 @@ class CheckpointTensors(Mapping[str, np.ndarray]):
         return len(self._entries)
 
 
-def read_checkpoint(index: bytes, shards: Mapping[int, bytes]) -> CheckpointTensors:
+def read_checkpoint(
+    index: bytes, shards: Mapping[int, bytes], shard_names: Mapping[int, str] | None = None
+) -> CheckpointTensors:
     """Every float32/int32 tensor of a checkpoint: name → array, read on first use.
 
-    ``shards`` maps a shard number to the bytes of ``.data-<shard>-of-<n>``. Tensors of other
+    ``shards`` maps a shard number to the bytes of ``.data-<shard>-of-<n>``, ``shard_names``
+    to its file name (for the messages). A tensor whose bytes do not match the CRC-32C its
+    entry records is refused when it is read (:class:`CheckpointTensors`). Tensors of other
     types (strings, int64 step counters...) are left out. Every entry is checked here, before
     any tensor is built: its declared shape (at most
     :data:`~training.interchange.graphbudget.MAX_TENSOR_VALUES` values), its shard, and that
@@ -224,16 +255,13 @@ def read_checkpoint(index: bytes, shards: Mapping[int, bytes]) -> CheckpointTens
         ):
             raise CheckpointFormatError(f"{name}: its bytes do not fit shape {shape}")
         entries[name] = (entry, dtype, shape, count)
-    return CheckpointTensors(entries, shards)
+    return CheckpointTensors(entries, shards, shard_names)
 
 
 # --- writing ---------------------------------------------------------------------------------
 
 
-def _masked_crc(data: bytes | memoryview) -> int:
-    """LevelDB's masked CRC-32C, as tables and bundle entries store it."""
-    crc = google_crc32c.value(bytes(data))
-    return (((crc >> 15) | (crc << 17)) + 0xA282EAD8) & 0xFFFFFFFF
+_masked_crc = masked_crc32c  # LevelDB's masked CRC-32C, as tables and bundle entries store it
 
 
 def _put_varint(value: int) -> bytes:

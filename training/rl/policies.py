@@ -7,7 +7,7 @@ pixels inside the network first, so the exported model still takes 160×120 imag
 network 2×2 (80×60; on a 2-core CPU it trains about 10× faster than DeepRacer's 3-layer CNN at
 full size), the compact one 4×4 (40×30), with fewer filters and dense units behind: its update
 costs about 0.6 of the lean network's, and the racing preset learns its fast laps in fewer
-steps with it (README, "The compact network").
+steps with it (docs/benchmarks.md, "The compact network").
 
 With a LIDAR the observation is a ``Dict`` keyed by DeepRacer's sensor ids and the policy is
 SB3's ``MultiInputPolicy`` with :class:`CameraLidarExtractor`: the camera network as above and,

@@ -29,10 +29,10 @@ The compact network (4×4 averaging to 40×30, 16 and 16 filters, 128 units) upd
 of the lean network's time and, over 10 seeds, reached the preset's goal in fewer steps (median
 16,408 against 19,208). Minibatches of 32 instead of 64 (twice the gradient steps an update, at
 1.1-1.2 times its cost) steadied the seeds: over 10 seeds a median of 14,572 steps and at most
-19,712, against 16,408 and 56,728: README, "The compact network". The six actions, the squared
-speed and the discount of 0.98 together drive faster laps at the goal for the same training (15
-seeds: a median qualifying lap of 6.00 against 7.00 s, best lap 5.33 against 5.40 s, a median of
-13,448 steps against 14,952): README, "Faster laps".
+19,712, against 16,408 and 56,728: docs/benchmarks.md, "The compact network". The six actions,
+the squared speed and the discount of 0.98 together drive faster laps at the goal for the same
+training (15 seeds: a median qualifying lap of 6.00 against 7.00 s, best lap 5.33 against 5.40
+s, a median of 13,448 steps against 14,952): docs/benchmarks.md, "Faster laps".
 Why straight ahead stops at 3.5 m/s: the camera's single frame does not show how fast the car
 is going, and the car needs time to brake (from 4 to 2 m/s, a quarter of a second). With 4 m/s
 the seeds that stalled drove clean laps and then left the track again, update after update,
@@ -40,8 +40,8 @@ at the same place: the greedy car took 4 m/s on the short straight between two b
 the second at 3.6 m/s (the median). The same policies with 4 m/s replaced by 3 m/s drove three
 clean laps every time (34 of 34 on seeds 0-14, ``bench/bench_stalls.py``). With 3.5 m/s at the
 top, over 30 seeds: a median of 12,316 steps to the goal against 13,896, at most 23,632 against
-42,120, laps no slower (a median qualifying lap of 5.93 against 6.00 s): README, "Why seeds
-stall".
+42,120, laps no slower (a median qualifying lap of 5.93 against 6.00 s): docs/benchmarks.md,
+"Why seeds stall".
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """A cgroup per sandbox child, one per controller: ``pids`` (the fallback that refuses new
 processes when seccomp is missing and the caller is root: RLIMIT_NPROC never applies to uid
-0) and ``memory`` (a limit the kernel enforces on everything the child holds: anonymous
+0), ``memory`` (a limit the kernel enforces on everything the child holds: anonymous
 memory, System V and POSIX shared memory, page cache, kernel memory; the address-space rlimit
-misses what is not mapped).
+misses what is not mapped) and ``io`` (``blkio`` in v1: bytes and requests per second on each
+disk, so a child reading files cannot take the disk from the host's other processes).
 
 The parent creates ``racecraft-sandbox-<pid>`` beside its own cgroup of that controller (v1,
 or v2 with the controller delegated to the parent's cgroup), sets the limit and moves the
@@ -36,11 +37,11 @@ def _own_cgroup(controller: str | None) -> str | None:
     return None
 
 
-def _base(controller: str) -> tuple[Path, int] | None:
+def _base(controller: str, v1_name: str) -> tuple[Path, int] | None:
     """The folder to create the child's cgroup in, and the cgroup version (1 or 2)."""
-    v1 = ROOT / controller
+    v1 = ROOT / v1_name
     if (v1 / "cgroup.procs").exists():
-        own = _own_cgroup(controller)
+        own = _own_cgroup(v1_name)
         return (v1 / own.lstrip("/"), 1) if own is not None else None
     if (ROOT / "cgroup.controllers").exists():
         own = _own_cgroup(None)
@@ -75,6 +76,8 @@ class ChildCgroup:
     and write its limits (:meth:`_limit`)."""
 
     controller = ""
+    #: The controller's name in cgroup v1 where it differs (``blkio`` for ``io``).
+    v1_controller = ""
 
     def __init__(self) -> None:
         self.path: Path | None = None
@@ -85,7 +88,7 @@ class ChildCgroup:
 
     def confine(self, pid: int) -> str | None:
         try:
-            found = _base(self.controller)
+            found = _base(self.controller, self.v1_controller or self.controller)
             if found is None:
                 return f"no {self.controller} cgroup controller available"
             base, self.version = found
@@ -200,3 +203,78 @@ class MemoryCgroup(ChildCgroup):
         except OSError:
             return False
         return False
+
+
+def block_devices(sys_block: Path = Path("/sys/block")) -> list[tuple[str, bool]]:
+    """Each disk of the machine as ``("major:minor", has_media)``; partitions go through their
+    disk, so limiting the disks limits them. ``has_media`` is False for an empty loop or
+    zram device (size 0)."""
+    found = []
+    for entry in sorted(sys_block.iterdir()):
+        try:
+            dev = (entry / "dev").read_text().strip()
+            size = int((entry / "size").read_text())
+        except (OSError, ValueError):
+            continue
+        found.append((dev, size > 0))
+    return found
+
+
+class IoCgroup(ChildCgroup):
+    """At most ``bytes_per_second`` and ``ops_per_second`` of reads, and as much of writes, on
+    every disk, for everything in the child's cgroup (v2 ``io.max``, v1 ``blkio.throttle.*``).
+
+    The child's reads go through the page cache (seccomp refuses O_DIRECT): a read served
+    from the cache costs the disk nothing and is not paced; one that misses waits its turn.
+    A disk that refuses a limit while it has no media (an empty loop device) is skipped; any
+    other refusal leaves the layer unavailable."""
+
+    controller = "io"
+    v1_controller = "blkio"
+
+    def __init__(
+        self, bytes_per_second: int, ops_per_second: int, sys_block: Path = Path("/sys/block")
+    ) -> None:
+        super().__init__()
+        self.bytes_per_second = bytes_per_second
+        self.ops_per_second = ops_per_second
+        self.sys_block = sys_block
+
+    def _limit(self, path: Path) -> None:
+        devices = block_devices(self.sys_block)
+        if not any(media for _, media in devices):
+            raise OSError(errno.ENODEV, f"no disk found in {self.sys_block}")
+        bps, iops = self.bytes_per_second, self.ops_per_second
+        for dev, media in devices:
+            try:
+                if self.version == 1:
+                    for name, value in (
+                        ("read_bps_device", bps),
+                        ("write_bps_device", bps),
+                        ("read_iops_device", iops),
+                        ("write_iops_device", iops),
+                    ):
+                        (path / f"blkio.throttle.{name}").write_text(f"{dev} {value}")
+                else:
+                    line = f"{dev} rbps={bps} wbps={bps} riops={iops} wiops={iops}"
+                    (path / "io.max").write_text(line)
+            except OSError:
+                if media:
+                    raise
+
+    def limits(self) -> dict[str, str]:
+        """What the kernel holds for this cgroup now, by device: the v2 ``io.max`` line, or
+        the v1 throttle values joined; empty when it is not confined. For tests and checks."""
+        if self.path is None:
+            return {}
+        found: dict[str, list[str]] = {}
+        names = (
+            ["io.max"]
+            if self.version == 2
+            else [f"blkio.throttle.{k}" for k in ("read_bps_device", "read_iops_device")]
+        )
+        for name in names:
+            for line in (self.path / name).read_text().splitlines():
+                dev, _, rest = line.partition(" ")
+                found.setdefault(dev, []).append(rest)
+        return {dev: " ".join(parts) for dev, parts in found.items()}

@@ -2,8 +2,9 @@
 
 Sequence: clean environment, close inherited fds, read the job, new namespaces (while
 single-threaded; a fork makes the rest PID 1 of a new PID namespace), import the allowed
-libraries and the target, run the target's ``prepare``, apply rlimits, no_new_privs, Landlock
-and seccomp, check that every protection the user code must not escape is in force
+libraries and the target, run the target's ``prepare``, apply rlimits, a root of its own
+(only the read paths and its own /proc exist: :mod:`training.sandbox.rootfs`), no_new_privs,
+Landlock and seccomp, check that every protection the user code must not escape is in force
 (:mod:`training.sandbox.requirements`; else refuse, fail closed), report the layers, wait for
 the parent's go (it tightens the memory cgroup first), then load the user's module and run the
 target with the guarded reward callable. Nothing here trusts the user code: after it has run,
@@ -139,10 +140,13 @@ def _main(argv: list[str]) -> None:
     layers["file_descriptors"] = lockdown.ACTIVE
     job = read_message_blocking(ctl_in)
     skip = frozenset(job.get("disabled_layers") or ())
-    if "namespaces" in skip:
+    others, mount = "namespaces" not in skip, "mount_namespace" not in skip
+    # From here on, PID 1 of a new PID namespace (with ``others``); the mount namespace's
+    # root is built at lock-down (``mount_namespace`` in the report).
+    ns = lockdown.unshare_namespaces(others=others, mount=mount) if others or mount else None
+    if not others:
         layers["namespaces"] = "disabled (test only)"
     else:
-        ns = lockdown.unshare_namespaces()  # from here on, PID 1 of a new PID namespace
         layers["namespaces"] = lockdown.ACTIVE if ns is None else f"unavailable: {ns}"
         if ns is None:
             _die_with_parent(None)
@@ -171,6 +175,7 @@ def _main(argv: list[str]) -> None:
     layers["python_guards"] = lockdown.ACTIVE if guards else "disabled (test only)"
     layers["cgroup_pids"] = str(job.get("cgroup_pids", "unavailable: not reported"))
     layers["cgroup_memory"] = str(job.get("cgroup_memory", "unavailable: not reported"))
+    layers["cgroup_io"] = str(job.get("cgroup_io", "unavailable: not reported"))
     apply_simulation(layers, tuple(job.get("simulate_missing") or ()))
     # Fail closed: nothing of the user's is loaded unless every protection is in force.
     missing = [r.name for r in missing_requirements(layers)]

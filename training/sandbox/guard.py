@@ -8,6 +8,7 @@ layers in :mod:`training.sandbox.lockdown` are). It runs only in the child.
 from __future__ import annotations
 
 import builtins
+import dis
 import io
 import sys
 import time
@@ -19,7 +20,13 @@ from typing import Any
 
 from training.sandbox.classes import GuardedType, guarded_build_class, is_metaclass
 from training.sandbox.errors import USER_FILENAME, RewardError, RewardFunctionError, hide_paths
-from training.sandbox.policy import FORBIDDEN_NAMES, attribute_refused, module_refused
+from training.sandbox.policy import (
+    ALLOWED_MODULES,
+    FORBIDDEN_NAMES,
+    REFUSED_SUBMODULES,
+    attribute_refused,
+    module_refused,
+)
 from training.sandbox.static import BEYOND_PYTHON, FUNCTION_NAME, check_source, too_deep
 
 MAX_REWARD = 1e5
@@ -102,7 +109,48 @@ def _exposed(value: Any) -> Any:
     return value
 
 
+#: The instruction an ``import`` statement runs; ``__import__`` called while the caller's frame
+#: stands on any other instruction was called by C code (or directly), never by a statement.
+_IMPORT_NAME = dis.opmap["IMPORT_NAME"]
+
+
+def _import_statement(frame: types.FrameType) -> bool:
+    """True when ``frame`` stands on an ``import``/``from ... import`` statement."""
+    code = frame.f_code.co_code  # the unspecialised bytecode; f_lasti is a byte offset in it
+    lasti = frame.f_lasti
+    return 0 <= lasti < len(code) and code[lasti] == _IMPORT_NAME
+
+
+def _library_may_load(name: str) -> bool:
+    """What a library's own import may load: a module already loaded (nothing runs), or one
+    of an allowed library's, private ones included, except its refused submodules."""
+    if name in sys.modules:
+        return True
+    return name.split(".")[0] in ALLOWED_MODULES and not any(
+        name == bad or name.startswith(bad + ".") for bad in REFUSED_SUBMODULES
+    )
+
+
 def _restricted_import(name: str, globals=None, locals=None, fromlist=(), level=0):  # noqa: ANN001,ANN202
+    """``__import__`` of the user's builtins. Two callers reach it:
+
+    - the user's ``import`` statements (the caller's frame stands on IMPORT_NAME): checked
+      against the allow-list, and the module comes back behind a :class:`ModuleProxy`;
+    - C code a library runs on the user's behalf: ``PyImport_Import`` looks ``__import__`` up
+      in the builtins of the calling Python frame, the user's, and passes the user's globals
+      (numpy imports ``numpy._core._methods`` the first time ``arr.mean()`` runs). The
+      module is loaded if :func:`_library_may_load`, and None comes back: ``PyImport_Import``
+      drops what ``__import__`` returns and reads ``sys.modules``, so a user who somehow
+      called this function directly would get nothing from it.
+
+    Which one is asked is read from the caller's instruction, not from ``globals`` (the user's
+    in both cases) nor from any argument the caller chooses.
+    """
+    if not _import_statement(sys._getframe(1)):
+        if level or fromlist or type(name) is not str or not _library_may_load(name):
+            raise ImportError(f"import of '{name}' is not allowed")
+        builtins.__import__(name, None, None, (), 0)
+        return None
     if level or module_refused(name):
         raise ImportError(f"import of '{name}' is not allowed")
     for item in fromlist or ():

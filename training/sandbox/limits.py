@@ -23,6 +23,11 @@ class SandboxLimits:
     allow_threads: let the child create threads (e.g. a rollout using torch intra-op threads);
         processes are refused either way.
     read_paths: extra directories the child may read after lock-down (Landlock).
+    disk_bytes_per_second, disk_ops_per_second: what the child may read (and write) of each
+        block device of the machine, in bytes and in requests per second, from its start (its
+        imports included); its io (cgroup v2) or blkio (v1) cgroup holds it there
+        (:class:`~training.sandbox.cgroup.IoCgroup`), so one job cannot take the disk from the
+        host's other processes. Reads served from the page cache do not count.
     """
 
     per_call_seconds: float = 1.0
@@ -34,6 +39,8 @@ class SandboxLimits:
     start_seconds: float = 30.0
     allow_threads: bool = False
     read_paths: tuple[str, ...] = field(default_factory=tuple)
+    disk_bytes_per_second: int = 64 << 20
+    disk_ops_per_second: int = 1000
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)
@@ -48,6 +55,11 @@ class SandboxLimits:
             kwargs["read_paths"] = tuple(kwargs["read_paths"])
         return cls(**kwargs)
 
+
+#: RLIMIT_SIGPENDING of every child: real-time signals it may have queued plus POSIX timers it
+#: may hold (each timer is charged one), counted against the worker's uid (issue 52: 20,000 of
+#: them made a bystander's ``timer_create`` fail). CPython, numpy and torch queue none.
+MAX_PENDING_SIGNALS = 64
 
 #: Validation: DeepRacer gives every runtime test 5 s.
 VALIDATION_LIMITS = SandboxLimits(per_call_seconds=5.0, cpu_seconds=120)

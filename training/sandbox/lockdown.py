@@ -17,10 +17,11 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from training.sandbox import landlock, seccomp
+from training.sandbox import landlock, rootfs, seccomp
 
 ACTIVE = "active"
 CLONE_NEWIPC = 0x08000000
+CLONE_NEWNS = 0x00020000
 CLONE_NEWPID = 0x20000000
 CLONE_NEWUSER = 0x10000000
 CLONE_NEWNET = 0x40000000
@@ -69,30 +70,63 @@ def close_inherited_fds(keep: set[int]) -> str | None:
     return None
 
 
-def unshare_namespaces() -> str | None:
+#: Why this process has no mount namespace of its own, private, to build its root in (None
+#: once :func:`unshare_namespaces` made one); and whether it is PID 1 of a PID namespace of
+#: its own (then it gets a fresh /proc).
+_no_mount_namespace: str | None = "not made (test only)"
+_own_pid_namespace = False
+
+
+def unshare_namespaces(*, others: bool = True, mount: bool = True) -> str | None:
     """New user (where possible), network (no interfaces), IPC (System V objects of its own,
-    gone with it) and PID namespaces; then fork: the rest of the child runs as PID 1 of the
-    new PID namespace, where no host process can be named (setpriority, sched_setaffinity,
-    kill and /proc lookups by pid see only the sandbox). The process that called this waits
-    for it and exits with its status (:func:`_wait_and_exit`); it runs no user code.
+    gone with it), PID namespaces (``others``) and mount namespace (``mount``: its root is
+    built at lock-down, :func:`isolate_filesystem`); with a PID namespace, then fork: the rest
+    of the child runs as PID 1 of the new PID namespace, where no host process can be named
+    (setpriority, sched_setaffinity, kill and /proc lookups by pid see only the sandbox). The
+    process that called this waits for it and exits with its status (:func:`_wait_and_exit`);
+    it runs no user code.
 
     Unprivileged users need the user namespace to get the others; root gets them even where
     user namespaces are disabled. Must run single-threaded, with only the descriptors the
-    child needs open.
+    child needs open. Returns None or why the namespaces were not made; why the mount
+    namespace is missing is kept apart (:func:`isolate_filesystem` reports it).
     """
+    global _no_mount_namespace, _own_pid_namespace
     libc = _libc()
-    others = CLONE_NEWNET | CLONE_NEWIPC | CLONE_NEWPID
-    if libc.unshare(CLONE_NEWUSER | others) != 0:
+    flags = (CLONE_NEWNET | CLONE_NEWIPC | CLONE_NEWPID if others else 0) | (
+        CLONE_NEWNS if mount else 0
+    )
+    uid, gid = os.geteuid(), os.getegid()
+    own_user = libc.unshare(CLONE_NEWUSER | flags) == 0
+    if not own_user:
         first = os.strerror(ctypes.get_errno())
-        if libc.unshare(others) != 0:
+        if libc.unshare(flags) != 0:
+            _no_mount_namespace = f"unshare failed: {first}"
             return f"unshare failed: {first}"
+    if mount:
+        # A tmpfs made in a user namespace refuses files for an owner it cannot map.
+        ids = rootfs.write_id_maps(uid, gid) if own_user else None
+        _no_mount_namespace = ids or rootfs.make_mounts_private()
+    if not others:
+        return None
     try:
         pid = os.fork()
     except OSError as exc:  # the namespaces exist but the PID one holds nobody: refuse
+        _no_mount_namespace = "the PID namespace holds nobody"
         return f"fork into the new PID namespace failed: {exc.strerror or exc}"
     if pid:
         _wait_and_exit(pid)
+    _own_pid_namespace = True
     return None
+
+
+def isolate_filesystem(paths: list[str]) -> str | None:
+    """Enter a root of its own holding only ``paths`` (read-only) and, as PID 1 of its own
+    PID namespace, a fresh /proc (:func:`training.sandbox.rootfs.enter_private_root`): a
+    lookup of anything else finds nothing. None when done, else why not."""
+    if _no_mount_namespace is not None:
+        return _no_mount_namespace
+    return rootfs.enter_private_root(paths, with_proc=_own_pid_namespace)
 
 
 _UNCATCHABLE = frozenset({signal.SIGKILL, signal.SIGSTOP})
@@ -127,7 +161,11 @@ def set_rlimits(
     *, cpu_seconds: int, memory_bytes: int, open_files: int, threads: bool
 ) -> str | None:
     """CPU, address space (current size + ``memory_bytes``), files, no file writes, no cores,
-    and no new processes (RLIMIT_NPROC 0; root in the initial user namespace is exempt)."""
+    no new processes (RLIMIT_NPROC 0; root in the initial user namespace is exempt), and few
+    queued signals: RLIMIT_SIGPENDING bounds the real-time signals it queues and the POSIX
+    timers it creates, both charged to the worker's uid across the host (issue 52)."""
+    from training.sandbox.limits import MAX_PENDING_SIGNALS
+
     problems = []
     with open("/proc/self/statm") as f:
         vm_bytes = int(f.read().split()[0]) * resource.getpagesize()
@@ -138,6 +176,7 @@ def set_rlimits(
         (resource.RLIMIT_FSIZE, (0, 0)),
         (resource.RLIMIT_CORE, (0, 0)),
         (resource.RLIMIT_MSGQUEUE, (0, 0)),
+        (resource.RLIMIT_SIGPENDING, (MAX_PENDING_SIGNALS,) * 2),
     ]
     if not threads:
         wanted.append((resource.RLIMIT_NPROC, (0, 0)))
@@ -202,7 +241,8 @@ def apply_all(
     caller_uid: int,
     skip: frozenset[str] = frozenset(),
 ) -> LayerReport:
-    """Apply rlimits, no_new_privs, Landlock, seccomp (after imports); report each, and the
+    """Apply rlimits, a root of its own (``mount_namespace``: only the read paths exist),
+    no_new_privs, Landlock, seccomp (after imports); report each, and the
     protections they add up to: ``signal_scope`` (Landlock ABI 6), ``nproc_limit``
     (RLIMIT_NPROC binds a ``caller_uid`` other than root) and ``limits_locked`` (a probe).
 
@@ -232,10 +272,12 @@ def apply_all(
     )
     nproc_binds = report["rlimits"] == ACTIVE and not allow_threads and caller_uid != 0
     record("nproc_limit", None if nproc_binds else "root (or threads allowed) is not bound")
+    # The same paths for both: what Landlock lets it open is all that exists in its root.
+    paths = default_read_paths(read_paths)
+    run("mount_namespace", lambda: isolate_filesystem(paths))
     nnp = set_no_new_privs()
     record("no_new_privs", nnp)
     if nnp is None:
-        paths = default_read_paths(read_paths)
         ll = run("landlock", lambda: landlock.restrict_to_read_only(paths))
         # Without Landlock nothing limits what is read: refuse every open() instead.
         run(

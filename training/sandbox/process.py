@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from training.sandbox.cgroup import MemoryCgroup, PidsCgroup
+from training.sandbox.cgroup import ChildCgroup, IoCgroup, MemoryCgroup, PidsCgroup
 from training.sandbox.child import BOOT, HEARTBEAT_BYTES
 from training.sandbox.errors import (
     RewardError,
@@ -65,6 +65,10 @@ CALL_SLACK_S = 2.0
 #: A call ends at this many times the per-call limit on the wall clock, however long it
 #: waited for a CPU (module docstring).
 CALL_BACKSTOP = 10.0
+#: Closing a sandbox: how long to wait for its processes to stop (a few microseconds), then
+#: for the waiter to reap the killed sandboxed process and exit (:func:`kill_and_reap`).
+STOP_TIMEOUT_S = 2.0
+REAP_TIMEOUT_S = 10.0
 #: Memory a child may use for its imports and set-up (our code, before lock-down), on top of
 #: its limits' ``memory_bytes``; at lock-down the cgroup is tightened to what it then holds
 #: plus ``memory_bytes``.
@@ -104,12 +108,74 @@ def call_overran(wall_s: float, waited_s: float, limit_s: float) -> bool:
 def calling_pid(pid: int) -> int:
     """The process that runs the calls of the sandbox child ``pid``: the child itself, or the
     process it forked into its new PID namespace (the child then only waits for it)."""
+    children = _children_of(pid)
+    return children[0] if len(children) == 1 else pid
+
+
+def _state_of(pid: int) -> str:
+    """The kernel's one-letter state of ``pid`` (R, S, T, Z, ...); "X" when it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rpartition(b")")[2].split()[0].decode()
+    except (OSError, IndexError):
+        return "X"
+
+
+def _pid_depth(pid: int) -> int:
+    """How many PID namespaces ``pid`` is in (the ``NSpid`` line of its status); 0 if gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("NSpid:"):
+                    return len(line.split()) - 1
+    except OSError:
+        pass
+    return 0
+
+
+def _children_of(pid: int) -> list[int]:
     try:
         with open(f"/proc/{pid}/task/{pid}/children") as f:
-            children = f.read().split()
+            return [int(c) for c in f.read().split()]
     except OSError:
-        return pid
-    return int(children[0]) if len(children) == 1 else pid
+        return []
+
+
+def kill_and_reap(proc: subprocess.Popen[bytes]) -> None:
+    """SIGKILL the sandbox child ``proc`` and everything under it, and reap it, leaving no
+    zombie anywhere.
+
+    ``proc`` is either the waiter outside the PID namespace (its one child is the sandboxed
+    process, PID 1 there) or, without a PID namespace, the sandboxed process itself. Killing
+    the process group let the waiter die before it had reaped its child: that child then
+    stayed a zombie of the host's PID 1, holding its queued signals, for as long as PID 1 does
+    not reap (issue 52). So the group is stopped first (a group signal reaches a child being
+    forked too, so nothing new escapes), the waiter's children in a deeper PID namespace are
+    killed (the kernel then kills all of that namespace), and the waiter is let go on to reap
+    and exit; only a waiter that does not within :data:`REAP_TIMEOUT_S` is killed outright.
+    """
+    pid = proc.pid
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(pid, signal.SIGSTOP)
+    deadline = time.monotonic() + STOP_TIMEOUT_S
+    while _state_of(pid) not in "TtZX" and time.monotonic() < deadline:
+        time.sleep(0.001)
+    children, depth = _children_of(pid), _pid_depth(pid)
+    if children and depth and all(_pid_depth(c) > depth for c in children):
+        for child in children:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(child, signal.SIGKILL)
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGCONT)
+        try:
+            proc.wait(REAP_TIMEOUT_S)
+            return
+        except subprocess.TimeoutExpired:
+            pass
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(pid, signal.SIGKILL)
+    with contextlib.suppress(ProcessLookupError):
+        proc.kill()
 
 
 @dataclass(frozen=True)
@@ -164,11 +230,13 @@ class SandboxProcess:
         self._kill_reason: str | None = None
         self._overran = False  # killed for time: the error is a SandboxTimeout
         self._stop = threading.Event()
+        self._kill_lock = threading.Lock()
         self._watchdog: threading.Thread | None = None
         self._finished = False
         self._oom = False
         self._cgroup = PidsCgroup(2)
         self._memory = MemoryCgroup(0)
+        self._io = IoCgroup(self.limits.disk_bytes_per_second, self.limits.disk_ops_per_second)
 
     # -- life cycle --------------------------------------------------------------------------
     def start(self) -> dict[str, str]:
@@ -225,6 +293,7 @@ class SandboxProcess:
         cgroup_state = self._confine("cgroup_pids", self._cgroup)
         self._memory = MemoryCgroup(self.limits.memory_bytes + STARTUP_MEMORY_BYTES)
         memory_state = self._confine("cgroup_memory", self._memory)
+        io_state = self._confine("cgroup_io", self._io)
         self._reader = FrameReader(self._from_child, self.limits.max_message_bytes)
         os.set_blocking(self._to_child, False)
         self._watchdog = threading.Thread(target=self._watch, name="sandbox-watchdog", daemon=True)
@@ -233,7 +302,7 @@ class SandboxProcess:
             "target": self.target, "prepare": self.prepare, "args": self.args,
             "limits": self.limits.to_dict(), "source": self.source,
             "python_guards": self.python_guards, "disabled_layers": list(self.disabled_layers),
-            "cgroup_pids": cgroup_state, "cgroup_memory": memory_state,
+            "cgroup_pids": cgroup_state, "cgroup_memory": memory_state, "cgroup_io": io_state,
             "allow_weak": self.allow_weak,
             "simulate_missing": list(simulated_missing()),
         }  # fmt: skip
@@ -243,7 +312,7 @@ class SandboxProcess:
             self.close()
             raise
 
-    def _confine(self, layer: str, cgroup: PidsCgroup | MemoryCgroup) -> str:
+    def _confine(self, layer: str, cgroup: ChildCgroup) -> str:
         assert self._proc is not None
         if layer in self.disabled_layers:
             return "disabled (test only)"
@@ -315,6 +384,7 @@ class SandboxProcess:
             self._oom = self._oom or self._memory.oom_killed()
             self._cgroup.remove()
             self._memory.remove()
+            self._io.remove()
         self._stop.set()
         if self._watchdog is not None and self._watchdog is not threading.current_thread():
             self._watchdog.join()
@@ -457,10 +527,8 @@ class SandboxProcess:
         proc = self._proc
         if proc is None or proc.returncode is not None:
             return
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(proc.pid, signal.SIGKILL)
-        with contextlib.suppress(ProcessLookupError):
-            proc.kill()
+        with self._kill_lock:
+            kill_and_reap(proc)
 
     def _watch(self) -> None:
         """Kill the child past the overall deadline, or when a call has been under way for

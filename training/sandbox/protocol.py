@@ -8,13 +8,15 @@ hand the child code execution in the parent). Arrays appear in the JSON as
 Nothing a child sends is trusted, so :func:`decode` bounds a frame before it builds anything:
 the JSON header's size (:data:`MAX_HEADER_BYTES`), how many containers and items it may declare
 (counted on the raw bytes, so a header of nested empty lists is refused before one list exists;
-a JSON value costs far more memory than its bytes), the nesting depth, and the arrays' count and
-shapes against the bytes that came with them.
+a JSON value costs far more memory than its bytes), the nesting depth, the arrays' count and
+shapes against the bytes that came with them, and one array per buffer (a buffer named twice is
+refused: decoding copies each byte that came at most once).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import select
 import struct
@@ -136,14 +138,24 @@ def decode(body: bytes) -> Any:
             offset += size
         if offset != len(body):
             raise ProtocolError("frame length mismatch")
+        views: dict[int, tuple[str, tuple[int, ...]]] = {}
         for spec in specs:
             i = int(spec["__ndarray__"])
+            # Each array has a buffer of its own (encode): a buffer named twice would be
+            # copied once per name, 256 copies of a 32 MB buffer from one frame (issue 52).
+            if i in views or not 0 <= i < len(arrays):
+                raise ProtocolError(f"array buffer {i} named twice or missing")
             dtype = str(spec["dtype"])
             if dtype not in ALLOWED_DTYPES:
                 raise ProtocolError(f"dtype {dtype!r} refused")
             shape = tuple(int(n) for n in spec["shape"])
             if len(shape) > MAX_DEPTH or any(n < 0 for n in shape):
                 raise ProtocolError("bad array shape")
+            if math.prod(shape) * np.dtype(dtype).itemsize != sizes[i]:
+                raise ProtocolError("an array's shape does not match its bytes")
+            views[i] = (dtype, shape)
+        # Checked in full before the first copy: a refused frame costs no copy at all.
+        for i, (dtype, shape) in views.items():
             arrays[i] = arrays[i].view(dtype).reshape(shape).copy()
         return _decode_value(header["m"], arrays)
     except ProtocolError:

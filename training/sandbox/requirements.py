@@ -30,6 +30,12 @@ LAYER_HELP: dict[str, str] = {
         "in Docker the default seccomp profile refuses unshare(), so run the worker with a "
         "profile that allows it"
     ),
+    "mount_namespace": (
+        "a mount namespace with a root of its own (only what it may read, and its own /proc): "
+        "user namespaces enabled for the worker (as for namespaces), or the worker run as root "
+        "(root keeping CAP_SETFCAP, which maps uid 0 into the namespace); in Docker a seccomp "
+        "profile that allows unshare(), mount() and pivot_root()"
+    ),
     "rlimits": "setrlimit() must work in the worker (a container must not forbid it)",
     "no_new_privs": "prctl(PR_SET_NO_NEW_PRIVS) must work (Linux >= 3.5)",
     "landlock": (
@@ -49,6 +55,10 @@ LAYER_HELP: dict[str, str] = {
     "cgroup_memory": (
         "a memory cgroup: run the worker as root, or give it a delegated cgroup v2 subtree "
         "with the memory controller enabled"
+    ),
+    "cgroup_io": (
+        "an io cgroup (blkio in cgroup v1): run the worker as root, or give it a delegated "
+        "cgroup v2 subtree with the io controller enabled"
     ),
     "address_space_limit": (
         "RLIMIT_AS with seccomp refusing System V and POSIX shared memory and message queues "
@@ -86,6 +96,30 @@ REQUIREMENTS: tuple[Requirement, ...] = (
         "memory_bound",
         "a memory limit on everything it holds (shared memory included)",
         ("cgroup_memory", "address_space_limit"),
+    ),
+    # stat() is no Landlock right: only a root of its own hides the rest (issue 52).
+    Requirement(
+        "no_host_lookups",
+        "no lookup of the host's files or processes (stat of /etc/shadow, /proc/<pid>) beyond "
+        "what it may read",
+        ("mount_namespace",),
+    ),
+    # What the worker's uid shares with every process of that uid on the host (issue 52).
+    Requirement(
+        "no_host_watch",
+        "no inotify or fanotify (counted per user across the host, and seeing past Landlock) "
+        "and no eviction of other processes' page cache",
+        ("seccomp",),
+    ),
+    Requirement(
+        "io_bound",
+        "a bound on its disk I/O (a limit per second, or at least no reads past the page cache)",
+        ("cgroup_io", "seccomp"),
+    ),
+    Requirement(
+        "signals_bounded",
+        "a bound on the signals and timers it queues (counted per user across the host)",
+        ("rlimits",),
     ),
 )
 REQUIREMENT_NAMES = frozenset(r.name for r in REQUIREMENTS)

@@ -33,7 +33,18 @@ CPython, numpy and (for rollouts) PyBullet and torch, whose syscalls are many. W
   ioprio_set, prlimit64 and migrate_pages/move_pages on any process but itself (pid 0);
 - memory outside its address space: System V shared memory, message queues and semaphores,
   POSIX message queues (with memfd_create above: nothing it holds escapes RLIMIT_AS);
-- shrinking its pipes (fcntl F_SETPIPE_SZ), which could stall a parent writing to it.
+- shrinking its pipes (fcntl F_SETPIPE_SZ), which could stall a parent writing to it;
+- what the worker's user shares with every other process of that user on the host (issue 52):
+  inotify (``inotify_init``/``inotify_init1``/``inotify_add_watch``: instances and watches are
+  counted per uid across the host, and a watch reports names of files created and opened in
+  folders Landlock keeps it from reading) and fanotify; the page cache of files others read
+  (``fadvise64`` of any kind, ``madvise`` with MADV_PAGEOUT, MADV_COLD, MADV_REMOVE,
+  MADV_HWPOISON, MADV_SOFT_OFFLINE or MADV_MERGEABLE: DONTNEED and FREE, which malloc uses,
+  only drop the caller's own mapping); and disk reads that skip the page cache (open/openat
+  with O_DIRECT, ``fcntl(F_SETFL, O_DIRECT)``; openat2 gets ENOSYS so libc uses openat), so
+  its reads go through the cache, where its memory cgroup bounds them, and its I/O cgroup
+  (:mod:`training.sandbox.cgroup`) paces them. POSIX timers are left to RLIMIT_SIGPENDING
+  (:func:`training.sandbox.lockdown.set_rlimits`): each one is charged to it.
 
 A name the installed libseccomp does not know (a syscall newer than it) is skipped: Landlock
 still covers the filesystem ones; keeping libseccomp2 updated keeps the list whole.
@@ -72,7 +83,9 @@ DENIED_SYSCALLS: tuple[str, ...] = (
     "perf_event_open", "userfaultfd", "keyctl", "add_key", "request_key", "io_uring_setup",
     "io_uring_enter", "io_uring_register", "memfd_create", "memfd_secret", "tkill",
     "rt_sigqueueinfo", "rt_tgsigqueueinfo", "pidfd_open", "pidfd_send_signal", "pidfd_getfd",
-    "name_to_handle_at", "open_by_handle_at", "fanotify_init", "sethostname",
+    "name_to_handle_at", "open_by_handle_at", "fanotify_init", "fanotify_mark",
+    "inotify_init", "inotify_init1", "inotify_add_watch", "fadvise64", "fadvise64_64",
+    "sethostname",
     "setdomainname", "reboot", "swapon", "swapoff", "acct", "settimeofday", "clock_settime",
     "adjtimex", "clock_adjtime", "iopl", "ioperm", "quotactl", "syslog", "vhangup",
     "setuid", "setgid", "setreuid", "setregid", "setresuid", "setresgid", "setgroups",
@@ -89,6 +102,23 @@ PID_FIRST_SYSCALLS: tuple[str, ...] = (
 PRIO_PROCESS = 0
 IOPRIO_WHO_PROCESS = 1
 F_SETPIPE_SZ = 1031
+F_SETFL = 4
+#: O_DIRECT differs between CPUs (asm/fcntl.h); None stands for the one this runs on.
+O_DIRECT_BY_ARCH: dict[int | None, int] = {
+    SCMP_ARCH_X86_64: 0o40000,
+    SCMP_ARCH_AARCH64: 0o200000,
+    None: getattr(os, "O_DIRECT", 0o40000),
+}
+#: madvise advice that acts on pages other processes share (the page cache of a file, KSM) or
+#: on the machine's memory itself: PAGEOUT, COLD, REMOVE, MERGEABLE, HWPOISON, SOFT_OFFLINE.
+REFUSED_MADVISE: dict[str, int] = {
+    "MADV_REMOVE": 9,
+    "MADV_MERGEABLE": 12,
+    "MADV_COLD": 20,
+    "MADV_PAGEOUT": 21,
+    "MADV_HWPOISON": 100,
+    "MADV_SOFT_OFFLINE": 101,
+}
 
 
 class _ArgCmp(ctypes.Structure):
@@ -167,6 +197,13 @@ class _Filter:
         self.lib.seccomp_release(self.ctx)
 
 
+def _int_eq(arg: int, value: int) -> tuple[int, int, int, int]:
+    """Argument ``arg`` equals ``value`` in its low 32 bits. The kernel reads an ``int``
+    argument (fcntl's command, madvise's advice, prctl's option) from the low half of the
+    register: a plain 64-bit EQ would let ``value | 1 << 32`` through to the same call."""
+    return (arg, SCMP_CMP_MASKED_EQ, 0xFFFFFFFF, value)
+
+
 def _build(
     lib: ctypes.CDLL, *, allow_threads: bool, deny_open: bool, own_pid: int, arch: int | None
 ) -> _Filter:
@@ -177,12 +214,16 @@ def _build(
             f.rule(eperm, name)
         for name in ("clone3", "openat2"):
             f.rule(_errno_action(errno.ENOSYS), name)
+        o_direct = O_DIRECT_BY_ARCH.get(arch, O_DIRECT_BY_ARCH[None])
         for name, flags_arg in (("open", 1), ("openat", 2)):
             if deny_open:
                 f.rule(eperm, name)
                 continue
-            for flag in OPEN_WRITE_FLAGS:
+            for flag in (*OPEN_WRITE_FLAGS, o_direct):
                 f.rule(eperm, name, (flags_arg, SCMP_CMP_MASKED_EQ, flag, flag))
+        f.rule(eperm, "fcntl", _int_eq(1, F_SETFL), (2, SCMP_CMP_MASKED_EQ, o_direct, o_direct))
+        for advice in REFUSED_MADVISE.values():
+            f.rule(eperm, "madvise", _int_eq(2, advice))
         if allow_threads:
             f.rule(eperm, "clone", (0, SCMP_CMP_MASKED_EQ, CLONE_THREAD, 0))
         else:
@@ -195,8 +236,8 @@ def _build(
         for name, which in (("setpriority", PRIO_PROCESS), ("ioprio_set", IOPRIO_WHO_PROCESS)):
             f.rule(eperm, name, (0, SCMP_CMP_NE, which, 0))
             f.rule(eperm, name, (1, SCMP_CMP_NE, 0, 0))
-        f.rule(eperm, "fcntl", (1, SCMP_CMP_EQ, F_SETPIPE_SZ, 0))
-        f.rule(eperm, "prctl", (0, SCMP_CMP_EQ, PR_SET_PDEATHSIG, 0))
+        f.rule(eperm, "fcntl", _int_eq(1, F_SETPIPE_SZ))
+        f.rule(eperm, "prctl", _int_eq(0, PR_SET_PDEATHSIG))
         for name in ("kill", "tgkill"):  # the first argument must be our own pid
             f.rule(eperm, name, (0, SCMP_CMP_NE, own_pid, 0))
     except BaseException:

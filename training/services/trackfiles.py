@@ -3,7 +3,9 @@ machine writes them into its own ``RACECRAFT_TRACKS_DIR`` before it needs them
 (:func:`tracks_sync`), so a worker that shares no disk with the web trains, evaluates and
 validates on a track uploaded through the web. A local copy is kept while its ``.sha256``
 sidecar matches the row (cached by content); a track imported again with ``--overwrite`` is
-written anew everywhere. Built-in tracks ship with the code and have no row.
+written anew everywhere. Built-in tracks (the project's and DeepRacer's) ship with the code
+and have no row; a row left from importing a DeepRacer file before it was built in is shadowed
+by the built-in track of that id.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from django.conf import settings
 from django.db import transaction
 
 from racing.track import TrackError
-from racing.tracks import BUILTIN_DIR, TRACK_ID_RE
+from racing.tracks import TRACK_ID_RE, is_builtin
 from training.errors import ServiceError
 from training.models import TrackFile
 from training.services.checks import track_catalog
@@ -54,7 +56,7 @@ def trackfile_save(*, track_id: str, name: str, data: bytes, user=None) -> Track
 
 def track_recorded(track_id: str) -> bool:
     """Whether ``track_id`` is a track every machine can have: built in, or recorded."""
-    if (BUILTIN_DIR / f"{track_id}.npy").is_file():
+    if is_builtin(track_id):
         return True
     return TrackFile.objects.filter(track_id=track_id).exists()
 
@@ -89,17 +91,19 @@ def tracks_sync(folder: str | Path | None = None) -> list[str]:
 def tracks_sync_for(track_ids: list[str]) -> list[str]:
     """:func:`tracks_sync` when any of ``track_ids`` is an imported track; built-in tracks ship
     with the code, so a job on them asks the database nothing."""
-    if all((BUILTIN_DIR / f"{t}.npy").is_file() for t in track_ids):
+    if all(is_builtin(t) for t in track_ids):
         return []
     return tracks_sync()
 
 
 def track_hashes(track_ids: list[str]) -> tuple[tuple[str, str], ...]:
     """``(track id, SHA-256)`` of those of ``track_ids`` that are recorded (imported): what a
-    job's env spec carries so that every machine checks it drives the same content."""
+    job's env spec carries so that every machine checks it drives the same content. A row
+    left from an import made before the track was built in is no longer the track: the
+    built-in file is what every machine drives."""
     rows = dict(TrackFile.objects.filter(track_id__in=set(track_ids))
                 .values_list("track_id", "sha256"))  # fmt: skip
-    return tuple((t, rows[t]) for t in dict.fromkeys(track_ids) if t in rows)
+    return tuple((t, rows[t]) for t in dict.fromkeys(track_ids) if t in rows and not is_builtin(t))
 
 
 def tracks_check_recorded(track_ids: list[str]) -> None:

@@ -5,7 +5,9 @@ the size, the waypoints, the geometry), run in a scratch folder next to the cata
 file that passed is recorded in the database (:mod:`training.services.trackfiles`: every
 machine gets it from there) and moved in, with ``os.replace``, so a bad or interrupted upload
 never leaves a half-written track behind. Imported tracks are shared by every user of the
-installation.
+installation. Track ids are unique without regard to case, and an id (in any case) of a built-in
+track is refused; a file byte-identical to one of DeepRacer's built-in tracks is recognised as
+that track and not imported again.
 """
 
 from __future__ import annotations
@@ -20,7 +22,14 @@ from django.conf import settings
 
 from racing.preview import render_preview_png
 from racing.track import TrackError
-from racing.tracks import MAX_TRACK_FILE_BYTES, TrackCatalog, TrackInfo, import_track
+from racing.tracks import (
+    MAX_TRACK_FILE_BYTES,
+    TrackCatalog,
+    TrackInfo,
+    builtin_duplicate,
+    import_track,
+    track_id_refusal,
+)
 from training.errors import ServiceError
 from training.models import TrackFile
 from training.services.checks import track_catalog
@@ -41,8 +50,21 @@ def default_track_id(filename: str) -> str:
     return re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_-")[:64] or "track"
 
 
-def _taken(track_id: str, local_ids: list[str]) -> bool:
-    return track_id in local_ids or TrackFile.objects.filter(track_id=track_id).exists()
+def _check_free(track_id: str, local_ids: list[str], *, overwrite: bool) -> None:
+    """Refuse ``track_id`` when a track has it (``overwrite`` replaces that one) or has it
+    without regard to case (never replaced: ids are unique without regard to case)."""
+    fold = track_id.casefold()
+    others = [t for t in local_ids if t.casefold() == fold]
+    others += TrackFile.objects.filter(track_id__iexact=track_id).values_list("track_id", flat=True)
+    look_alikes = [t for t in others if t != track_id]
+    if look_alikes:
+        raise ServiceError(
+            f"{track_id!r} differs only in case from the track {look_alikes[0]!r}; track ids "
+            "are unique without regard to case: choose another id",
+            field="track_id",
+        )
+    if others and not overwrite:
+        raise ServiceError(f"a track with id {track_id!r} exists already", field="track_id")
 
 
 def _validated(data: bytes, track_id: str, name: str, scratch: Path, *,
@@ -54,8 +76,13 @@ def _validated(data: bytes, track_id: str, name: str, scratch: Path, *,
             f"the file is {len(data):,} bytes; a track file is at most {MAX_TRACK_FILE_BYTES:,}",
             field="file",
         )
-    if not overwrite and _taken(track_id, track_catalog().ids()):
-        raise ServiceError(f"a track with id {track_id!r} exists already", field="track_id")
+    known = builtin_duplicate(data)  # whatever its name: the racer wants that track
+    if known:
+        raise ServiceError(known, field="file")
+    refusal = track_id_refusal(track_id)  # a built-in's id: --overwrite cannot pass it
+    if refusal:
+        raise ServiceError(refusal, field="track_id")
+    _check_free(track_id, track_catalog().ids(), overwrite=overwrite)
     try:
         return import_track(data, track_id=track_id, dest_dir=scratch, name=name)
     except TrackError as exc:
@@ -99,9 +126,8 @@ def track_add(*, data: bytes, track_id: str, name: str = "", user=None,
     tracks_sync(dest)  # an id taken on another machine is taken here too
     with _scratch(dest) as scratch:
         _validated(data, track_id, name, Path(scratch), overwrite=overwrite)
-        if not overwrite and _taken(track_id, [p.stem for p in dest.glob("*.npy")]):
-            # raced by another upload
-            raise ServiceError(f"a track with id {track_id!r} exists already", field="track_id")
+        # raced by another upload
+        _check_free(track_id, [p.stem for p in dest.glob("*.npy")], overwrite=overwrite)
         stored = (Path(scratch) / f"{track_id}.npy").read_bytes()
         row = trackfile_save(track_id=track_id, name=name or track_id, data=stored, user=user)
         (Path(scratch) / f"{track_id}.sha256").write_text(row.sha256)

@@ -7,7 +7,9 @@ turns every SDK, HTTP and OS error into one exception of ours, :class:`StoreErro
 key).
 
 :func:`read_model_folder` reads a model folder out of someone else's bucket (a
-DeepRacer-for-Cloud prefix, for an import) with keys that are used once and never kept.
+DeepRacer-for-Cloud prefix, for an import) with keys that are used once and never kept. It does
+not use the minio SDK: a user names that server, so it is read through the guarded outbound
+client (:mod:`training.storage.outbound`, :mod:`training.storage.foreign_s3`).
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ from training.storage.base import (
     check_bucket_name,
     validate_key,
 )
+from training.storage.foreign_s3 import ForeignBucket, S3Refusal
+from training.storage.outbound import Endpoint, OutboundError, OutboundPolicy, OutboundSession
 
 
 class MinioStore(ObjectStore):
@@ -225,100 +229,71 @@ def read_model_folder(
     *,
     max_files: int,
     max_bytes: int,
-    timeout_s: float = 10.0,
+    policy: OutboundPolicy,
 ) -> dict[str, bytes]:
     """The files of the model folder ``access`` names that ``choose`` wants, relative path →
     bytes. Only :data:`MODEL_FOLDERS` are listed, each up to ``max_files`` objects; the files
-    fetched may hold ``max_bytes`` in all. The client is built here and dropped: one connection
-    try and one retry, ``timeout_s`` to connect (three times that per read). Raises
-    :class:`BucketError` (its ``reason`` says which failure), never with the keys in it."""
+    fetched may hold ``max_bytes`` in all. Everything goes through one guarded
+    :class:`~training.storage.outbound.OutboundSession` under ``policy`` (the addresses it
+    may reach, its deadline, its number of requests, each body's bound). Raises
+    :class:`BucketError` (its ``reason`` says which failure: ``unreachable`` for every failure
+    to reach an S3 server, whatever the server sent), never with the keys or the server's
+    words in it."""
     if access.prefix:
         try:
             validate_key(access.prefix)
         except StoreError as exc:
             raise BucketError(f"not a folder name: {exc}", reason="prefix") from None
+    try:
+        endpoint = Endpoint.parse(access.endpoint, secure=access.secure)
+    except ValueError:
+        raise BucketError(f"the endpoint must be host:port, not {access.endpoint!r}",
+                          reason="endpoint") from None  # fmt: skip
     base = f"{access.prefix}/" if access.prefix else ""
     sizes: dict[str, int] = {}
-    with _bucket_errors(access):
-        client = _foreign_client(access, timeout_s)
+    with OutboundSession(endpoint, policy) as session, _bucket_errors(access, endpoint):
+        bucket = ForeignBucket(session, access.bucket, access, access.region)
         for folder in MODEL_FOLDERS:
-            listing = client.list_objects(access.bucket, prefix=base + folder or None)
-            for listed, obj in enumerate(listing, start=1):
+            for listed, (key, size) in enumerate(bucket.list_folder(base + folder), start=1):
                 if listed > max_files:
                     raise BucketError(f"{access.url}/{folder} holds more than {max_files} files",
                                       reason="too_big")  # fmt: skip
-                if not obj.is_dir:
-                    sizes[obj.object_name[len(base) :]] = int(obj.size or 0)
-    fetched: dict[str, bytes] = {}
+                sizes[key[len(base) :]] = size
+        fetched: dict[str, bytes] = {}
 
-    def read(names: Iterable[str]) -> dict[str, bytes]:
-        wanted = [n for n in dict.fromkeys(names) if n in sizes]
-        total = sum(sizes[n] for n in {*fetched, *wanted})
-        if total > max_bytes:
-            size = f"{max_bytes / 2**20:.0f} MB"
-            raise BucketError(f"the model at {access.url} is larger than {size}", reason="too_big")
-        for name in wanted:
-            if name not in fetched:
-                with _bucket_errors(access):
-                    fetched[name] = _read_object(client, access, base + name, sizes[name])
-        return {n: fetched[n] for n in wanted}
+        def read(names: Iterable[str]) -> dict[str, bytes]:
+            wanted = [n for n in dict.fromkeys(names) if n in sizes]
+            total = sum(sizes[n] for n in {*fetched, *wanted})
+            if total > max_bytes:
+                size = f"{max_bytes / 2**20:.0f} MB"
+                raise BucketError(f"the model at {access.url} is larger than {size}",
+                                  reason="too_big")  # fmt: skip
+            for name in wanted:
+                if name not in fetched:
+                    fetched[name] = _read_object(bucket, base + name, sizes[name])
+            return {n: fetched[n] for n in wanted}
 
-    return read(choose(sizes, read))
-
-
-def _foreign_client(access: BucketAccess, timeout_s: float) -> Any:
-    import urllib3
-    from minio import Minio
-
-    endpoint, secure = access.endpoint.strip(), access.secure
-    for scheme, is_secure in (("http://", False), ("https://", True)):
-        if endpoint.lower().startswith(scheme):
-            endpoint, secure = endpoint[len(scheme) :], is_secure
-    endpoint = endpoint.rstrip("/")
-    if not endpoint or "/" in endpoint or any(c.isspace() for c in endpoint):
-        raise BucketError(f"the endpoint must be host:port, not {access.endpoint!r}",
-                          reason="endpoint")  # fmt: skip
-    http = urllib3.PoolManager(
-        timeout=urllib3.Timeout(connect=timeout_s, read=3 * timeout_s),
-        retries=urllib3.Retry(total=1, backoff_factor=0.2, status_forcelist=(502, 503, 504)),
-    )
-    return Minio(endpoint, access_key=access.access_key, secret_key=access.secret_key,
-                 secure=secure, region=access.region or None, http_client=http)  # fmt: skip
+        return read(choose(sizes, read))
 
 
-def _read_object(client: Any, access: BucketAccess, key: str, size: int) -> bytes:
-    response = client.get_object(access.bucket, key)
-    try:
-        data = response.read(size + 1)
-    finally:
-        response.close()
-        response.release_conn()
-    if len(data) > size:  # it grew since it was listed
-        raise BucketError(f"{key} changed while it was read", reason="too_big")
-    return data
+def _read_object(bucket: ForeignBucket, key: str, size: int) -> bytes:
+    return bucket.read(key, size)
 
 
 @contextmanager
-def _bucket_errors(access: BucketAccess) -> Iterator[None]:
-    """Every SDK, HTTP and OS error as a :class:`BucketError`, raised ``from None``: the SDK's
-    frames and messages stay out of tracebacks (the keys are in its client's state)."""
-    from minio.error import InvalidResponseError, MinioException, S3Error, ServerError
-    from urllib3.exceptions import HTTPError
-
-    where = f"{'https' if access.secure else 'http'}://{access.endpoint}"
+def _bucket_errors(access: BucketAccess, endpoint: Endpoint) -> Iterator[None]:
+    """A known S3 refusal as a :class:`BucketError` on its reason, every other failure as
+    ``unreachable``; the detail logged is ours (which rule), never the server's words."""
     try:
         yield
     except StoreError:
         raise
-    except S3Error as exc:
-        reason = _DENIED.get(exc.code, "bucket" if exc.code in _NO_BUCKET else "refused")
-        message = f"{access.url}: {exc.code}: {exc.message}"
-        raise BucketError(message, action="read", key=access.prefix, reason=reason) from None
-    except (InvalidResponseError, ServerError) as exc:  # an answer, but not S3's
-        raise BucketError(f"{where} does not answer as an S3 server ({exc})",
+    except S3Refusal as refusal:
+        reason = _DENIED.get(
+            refusal.code, "bucket" if refusal.code in _NO_BUCKET else "unreachable"
+        )
+        raise BucketError(f"{access.url} at {endpoint}: {refusal.code}", action="read",
+                          key=access.prefix, reason=reason) from None  # fmt: skip
+    except OutboundError as exc:
+        raise BucketError(f"cannot reach {endpoint}: {exc.detail}",
                           reason="unreachable") from None  # fmt: skip
-    except (MinioException, HTTPError, OSError) as exc:
-        raise BucketError(f"cannot reach {where}: {type(exc).__name__}",
-                          reason="unreachable") from None  # fmt: skip
-    except ValueError as exc:  # the SDK's checks of the endpoint, bucket and region
-        raise BucketError(f"{access.url} at {where}: {exc}", reason="endpoint") from None

@@ -1,6 +1,10 @@
 """``manage.py import_track FILE.npy [--id ID] [--name NAME]``: add a DeepRacer track file to
 the catalogue, validated first (recorded in the database, so that every machine has it, and
-written into RACECRAFT_TRACKS_DIR); the gallery and model forms list it."""
+written into RACECRAFT_TRACKS_DIR); the gallery and model forms list it.
+
+DeepRacer's own tracks are built in: one of their files is recognised and refused, naming the
+built-in track to pick instead. Track ids are unique without regard to case, and no id (in
+any case) of a built-in track is accepted, even with ``--overwrite``."""
 
 from __future__ import annotations
 
@@ -19,7 +23,9 @@ class Command(BaseCommand):
         parser.add_argument("file", help="a DeepRacer .npy track file")
         parser.add_argument("--id", dest="track_id", help="track id (default: the file name)")
         parser.add_argument("--name", default="", help="display name (default: the id)")
-        parser.add_argument("--overwrite", action="store_true", help="replace a track")
+        parser.add_argument(
+            "--overwrite", action="store_true", help="replace an imported track of that id"
+        )
 
     def handle(self, *args, file: str, track_id: str | None, name: str, overwrite: bool,
                **options) -> None:  # fmt: skip

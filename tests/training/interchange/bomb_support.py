@@ -14,6 +14,7 @@ from tensorboard.compat.proto.tensor_shape_pb2 import TensorShapeProto
 from tests.support import tar_gz
 from training.interchange.carmodel import build_car_archive
 from training.interchange.export import new_model
+from training.interchange.integrity import masked_crc32c
 from training.interchange.tfcheckpoint import TABLE_MAGIC, _entry_class
 from training.interchange.tfgraph import GraphWriter
 from training.rl.metadata import ModelMetadata, build_metadata
@@ -111,19 +112,26 @@ def _table_block(entries: list[tuple[bytes, bytes]]) -> bytes:
     return body + (0).to_bytes(4, "little") + (1).to_bytes(4, "little")
 
 
-def checkpoint_index(tensors: dict[str, tuple[list[int], int, int]]) -> bytes:
+def checkpoint_index(tensors: dict[str, tuple[list[int], int, int]], shard: bytes = b"") -> bytes:
     """A TensorFlow ``.index`` (an SSTable of ``BundleEntryProto``) declaring float32 tensors
-    ``name → (shape, offset, size)`` in shard 0, written by hand as TensorFlow lays it out."""
+    ``name → (shape, offset, size)`` in shard 0, written by hand as TensorFlow lays it out,
+    with the CRC-32C of each tensor's bytes in ``shard`` (where they lie in it)."""
     entry_class = _entry_class()
     entries = [(b"", b"")]
     for name, (shape, offset, size) in sorted(tensors.items()):
         entry = entry_class(dtype=types_pb2.DT_FLOAT, shard_id=0, offset=offset, size=size)
         entry.shape.dim.extend(TensorShapeProto.Dim(size=d) for d in shape)
+        if offset + size <= len(shard):
+            entry.crc32c = masked_crc32c(shard[offset : offset + size])
         entries.append((name.encode(), entry.SerializeToString()))
     data = _table_block(entries)
-    trailer = b"\x00" + bytes(4)  # uncompressed, checksum unchecked
     index = _table_block([(b"\xff", _varint(0) + _varint(len(data)))])
-    index_offset = len(data) + len(trailer)
+    index_offset = len(data) + 5
     handles = _varint(0) + _varint(0) + _varint(index_offset) + _varint(len(index))
     footer = handles.ljust(40, b"\x00") + TABLE_MAGIC.to_bytes(8, "little")
-    return data + trailer + index + trailer + footer
+    return data + _trailer(data) + index + _trailer(index) + footer
+
+
+def _trailer(block: bytes) -> bytes:
+    """A block's type (uncompressed) and masked CRC-32C."""
+    return b"\x00" + masked_crc32c(block + b"\x00").to_bytes(4, "little")

@@ -136,7 +136,11 @@ def test_a_broken_droa_model_says_what_is_missing(missing, message, ppo_discrete
 @pytest.mark.django_db
 @pytest.mark.parametrize(
     ("world", "track", "note"),
-    [("racecraft_oval", "racecraft_oval", ""), ("reInvent2019_track", None, "reInvent2019")],
+    [
+        ("racecraft_oval", "racecraft_oval", ""),
+        ("reInvent2019_track", "reInvent2019_track", ""),
+        ("H_track", None, "H_track"),
+    ],  # DeepRacer's tracks are built in; H_track is not
 )
 def test_a_droa_export_becomes_a_model(world, track, note, ppo_discrete, tmp_path,
                                        settings) -> None:  # fmt: skip

@@ -65,7 +65,7 @@ def test_checkpoint_bytes_must_lie_in_the_shard() -> None:
 
 def test_checkpoint_tensors_are_read_when_used_within_a_total(monkeypatch) -> None:
     shard = np.arange(8, dtype="<f4").tobytes()
-    index = checkpoint_index({"a": ([4], 0, 16), "b": ([4], 16, 16), "c": ([2, 2], 0, 16)})
+    index = checkpoint_index({"a": ([4], 0, 16), "b": ([4], 16, 16), "c": ([2, 2], 0, 16)}, shard)
     tensors = read_checkpoint(index, {0: shard})
     assert sorted(tensors) == ["a", "b", "c"] and tensors._read == {}  # nothing read yet
     np.testing.assert_array_equal(tensors["b"], [4, 5, 6, 7])

@@ -103,6 +103,7 @@ def test_the_examples_validate_and_run(example) -> None:
     assert result.layers["seccomp"].startswith(("active", "unavailable"))
 
 
+@pytest.mark.slow  # 81 tracks since DeepRacer's are built in: about 2 s each on a loaded machine
 def test_examples_run_on_every_track() -> None:
     source = example_source("object_avoidance")
     for track_id in TrackCatalog().ids():

@@ -29,6 +29,10 @@ BREAKS = {
     "no_signals": "seccomp,signal_scope",
     "no_scheduling": "seccomp,namespaces",
     "memory_bound": "cgroup_memory,address_space_limit",
+    "no_host_watch": "seccomp",
+    "io_bound": "cgroup_io,seccomp",
+    "signals_bounded": "rlimits",
+    "no_host_lookups": "mount_namespace",
 }
 
 
@@ -81,7 +85,8 @@ def test_training_rollouts_refuse_to_load_the_code(requirement, monkeypatch) -> 
     assert "needs" in str(caught.value)  # how to get it
 
 
-@pytest.mark.parametrize("layer", ["seccomp", "landlock", "namespaces", "cgroup_pids"])
+# seccomp alone is the wall for inotify and the page cache (issue 52): its absence fails closed.
+@pytest.mark.parametrize("layer", ["cgroup_io", "landlock", "namespaces", "cgroup_pids"])
 def test_one_missing_layer_is_covered_by_the_others(layer, monkeypatch) -> None:
     monkeypatch.setenv(SIMULATE_ENV, layer)
     result = evaluate_reward(OK, [real_params()])
@@ -100,7 +105,7 @@ def test_the_opt_in_runs_the_code_with_a_warning(monkeypatch) -> None:
     assert "weakened isolation" in warning and "no_writes" in warning
     rollout = SandboxedVecEnv(EnvSpec(track=TRACK_ID), 1, OK, num_workers=1)
     try:
-        assert rollout.workers[0].weak == ("no_writes",)
+        assert rollout.workers[0].weak == broken_by(BREAKS["no_writes"])
     finally:
         rollout.close()
 

@@ -33,6 +33,7 @@ from training.sandbox import (
     evaluate_reward,
     isolation_support,
 )
+from training.sandbox.requirements import ALLOW_WEAK_ENV
 
 ROOT = Path(__file__).resolve().parents[3]
 CGROUPS = Path("/sys/fs/cgroup")
@@ -102,7 +103,9 @@ SYSCALLS = {"x86_64": (251, 302), "aarch64": (30, 261)}  # ioprio_set, prlimit64
 
 @pytest.mark.skipif(os.uname().machine not in SYSCALLS, reason="syscall numbers of this CPU")
 @pytest.mark.parametrize("disabled", ["none", "seccomp", "namespaces"])
-def test_reward_code_cannot_renice_pin_or_limit_other_processes(disabled: str) -> None:
+def test_reward_code_cannot_renice_pin_or_limit_other_processes(
+    disabled: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
     other = {"seccomp": "namespaces", "namespaces": "seccomp"}.get(disabled)
     if other and isolation_support().get(other) != "active":
         pytest.skip(f"{other} is not available here to hold alone")
@@ -112,6 +115,8 @@ def test_reward_code_cannot_renice_pin_or_limit_other_processes(disabled: str) -
         f"HOST, VICTIM, HOST_PGID, UNUSED_UID = {os.getpid()}, {victim.pid}, "
         f"{os.getpgid(0)}, 54321\nIOPRIO_SET, PRLIMIT64 = {ioprio_set}, {prlimit64}\n" + RENICE
     )
+    if disabled == "seccomp":  # inotify and the page cache have no other wall (issue 52)
+        monkeypatch.setenv(ALLOW_WEAK_ENV, "1")
     off = () if disabled == "none" else (disabled,)
     try:
         with _restored(os.getpid(), victim.pid):
@@ -165,9 +170,13 @@ def _available_bytes() -> int:
 
 
 @pytest.mark.parametrize("disabled", [(), ("seccomp",), ("seccomp", "cgroup_memory")])
-def test_system_v_memory_cannot_grow_past_the_limit(disabled: tuple[str, ...]) -> None:
+def test_system_v_memory_cannot_grow_past_the_limit(
+    disabled: tuple[str, ...], monkeypatch: pytest.MonkeyPatch
+) -> None:
     if disabled == ("seccomp",) and isolation_support().get("cgroup_memory") != "active":
         pytest.skip("no memory cgroup this process may write: seccomp alone bounds it here")
+    if disabled == ("seccomp",):  # inotify and the page cache have no other wall (issue 52)
+        monkeypatch.setenv(ALLOW_WEAK_ENV, "1")
     limits = SandboxLimits(per_call_seconds=30.0, cpu_seconds=60, memory_bytes=256 << 20)
     shm_before = _sysv_objects()
     available = _available_bytes()

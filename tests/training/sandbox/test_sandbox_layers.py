@@ -16,6 +16,7 @@ import pytest
 
 from tests.training.sandbox.sandbox_support import host_intact, real_params
 from training.sandbox import SandboxLimits, evaluate_reward, isolation_support, landlock
+from training.sandbox.requirements import ALLOW_WEAK_ENV
 
 LIMITS = SandboxLimits(per_call_seconds=1.0, cpu_seconds=30)
 
@@ -69,12 +70,14 @@ def _assert_contained(result, arena: dict) -> None:
 @pytest.mark.parametrize("disabled", ["none", "landlock", "seccomp", "namespaces", "cgroup_pids"])
 @pytest.mark.parametrize("attack", list(ATTACKS))
 def test_attack_is_contained_with_a_layer_switched_off(
-    attack: str, disabled: str, arena: dict
+    attack: str, disabled: str, arena: dict, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     if disabled == "seccomp" and attack == "kill_parent" and landlock.abi_version() < 6:
         pytest.skip("without seccomp, only Landlock ABI 6 scopes signals")
     if disabled == "seccomp" and landlock.abi_version() < 1:
         pytest.skip("no Landlock on this kernel: seccomp is the only filesystem layer")
+    if disabled == "seccomp":  # inotify and the page cache have no other wall (issue 52)
+        monkeypatch.setenv(ALLOW_WEAK_ENV, "1")
     off = () if disabled == "none" else (disabled,)
     with host_intact(arena["dir"]):
         result = evaluate_reward(
@@ -140,14 +143,17 @@ print(json.dumps({"cap_eff": cap_eff, "layers": result.layers,
 @pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("setpriv"), reason="needs root + setpriv")
 def test_a_caller_without_privileges_gets_the_same_layers(arena: dict) -> None:
     """Root with every capability dropped stands in for an ordinary user here: no
-    CAP_SYS_ADMIN (namespaces need a user namespace), no CAP_SYS_RESOURCE (RLIMIT_NPROC)."""
+    CAP_SYS_ADMIN (namespaces need a user namespace), no CAP_SYS_RESOURCE (RLIMIT_NPROC). It
+    keeps CAP_SETFCAP, which an ordinary user does not need: only uid 0 needs it to map itself
+    into the user namespace its root is built in (the mount namespace; without it, fail closed)."""
     source = _source(
         "pid = os.fork()\n    if pid == 0:\n        os._exit(0)\n    " + ATTACKS["write"], arena
     )
     cmd = [
         "setpriv",
-        "--inh-caps=-all",
-        "--bounding-set=-all",
+        "--inh-caps=-all,+setfcap",
+        "--ambient-caps=+setfcap",
+        "--bounding-set=-all,+setfcap",
         "--securebits=+noroot,+noroot_locked,+no_setuid_fixup,+no_setuid_fixup_locked",
         sys.executable,
         "-c",
@@ -159,7 +165,7 @@ def test_a_caller_without_privileges_gets_the_same_layers(arena: dict) -> None:
     )
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout.strip().splitlines()[-1])
-    assert int(report["cap_eff"], 16) == 0
+    assert int(report["cap_eff"], 16) == 1 << 31  # CAP_SETFCAP alone
     assert report["errors"] and "PermissionError" in report["errors"][0]
     assert not Path(arena["canary"]).exists()
     here = isolation_support()

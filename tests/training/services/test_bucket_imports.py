@@ -123,6 +123,13 @@ def drfc(s3_endpoint, ppo_discrete) -> Iterator[Drfc]:
         moto_settings.INITIAL_NO_AUTH_ACTION_COUNT = saved
 
 
+@pytest.fixture(autouse=True)
+def outbound_allows_loopback(settings) -> None:
+    """The moto server listens on loopback, which a user's address may reach only when the
+    operator allows it, as for a DeepRacer-for-Cloud MinIO on the same machine."""
+    settings.RACECRAFT_OUTBOUND_ALLOW = ["127.0.0.1"]
+
+
 def closed_port() -> str:
     import socket
 
@@ -254,6 +261,32 @@ def test_each_failure_is_one_sentence_on_its_field(drfc, alice, change, field, w
     assert (refused.field, refused.message[: len(words)]) == (field, words)
     assert drfc.secret_key not in refused.message and drfc.access_key not in refused.message
     assert not RacingModel.objects.filter(name="x").exists()
+
+
+def test_a_host_the_operator_allows_by_name_is_looked_up_once(drfc, settings, monkeypatch):
+    """A LAN MinIO named in RACECRAFT_OUTBOUND_ALLOW is read (here a made-up name for the moto
+    server's loopback address), and its name is looked up once for the whole import: every
+    connection goes to the address that was checked, none asks the resolver again."""
+    import socket
+
+    settings.RACECRAFT_OUTBOUND_ALLOW = ["drfc-minio"]
+    real, lookups = socket.getaddrinfo, []
+
+    def resolve(host, port, *args, **kwargs):
+        if host == "drfc-minio":
+            lookups.append(host)
+            host = "127.0.0.1"
+        return real(host, port, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", resolve)
+    endpoint = f"drfc-minio:{drfc.endpoint.rpartition(':')[2]}"
+    archive = bucket_imports.bucket_model_archive(**drfc.kwargs(endpoint=endpoint))
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        assert {m.name for m in tar.getmembers()} == WANTED
+    assert lookups == ["drfc-minio"]
+    settings.RACECRAFT_OUTBOUND_ALLOW = []  # not allowed: the same loopback is refused
+    refused = refusal(lambda: bucket_imports.bucket_model_archive(**drfc.kwargs(endpoint=endpoint)))
+    assert refused.message.startswith(f"cannot reach an S3 server at http://{endpoint}")
 
 
 def test_an_unreachable_endpoint_is_refused_within_seconds(drfc, alice) -> None:

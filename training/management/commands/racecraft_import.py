@@ -45,7 +45,9 @@ class Command(BaseCommand):
             metavar=("ENDPOINT", "BUCKET", "PREFIX"),
             help="read the model from a DeepRacer-for-Cloud bucket: the S3 endpoint "
             "(host:port, e.g. localhost:9000), the bucket and the model's prefix "
-            "(e.g. rl-deepracer-sagemaker; '' for the bucket's top)",
+            "(e.g. rl-deepracer-sagemaker; '' for the bucket's top). Only public addresses "
+            "are reached unless RACECRAFT_OUTBOUND_ALLOW names the host or its network "
+            "(e.g. RACECRAFT_OUTBOUND_ALLOW=localhost for a DeepRacer-for-Cloud on this machine)",
         )
         parser.add_argument(
             "--https", action="store_true", help="talk HTTPS to the endpoint (or give https://)"

@@ -2,7 +2,7 @@
 # hostile: numpy.fromfile of a secret, Python guards off
 # mode: bypass
 # expect: TEST_FAILURE
-# match: PermissionError
+# match: PermissionError|FileNotFoundError
 
 import numpy as np
 

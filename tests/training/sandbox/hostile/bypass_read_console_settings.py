@@ -2,7 +2,7 @@
 # hostile: reading the console's settings module for secrets, Python guards off
 # mode: bypass
 # expect: TEST_FAILURE
-# match: PermissionError
+# match: PermissionError|FileNotFoundError
 
 
 def reward_function(params):

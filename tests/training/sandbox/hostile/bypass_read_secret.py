@@ -2,7 +2,7 @@
 # hostile: reading a file outside the allowed paths, Python guards off
 # mode: bypass
 # expect: TEST_FAILURE
-# match: PermissionError
+# match: PermissionError|FileNotFoundError
 
 
 def reward_function(params):
