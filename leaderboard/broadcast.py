@@ -2,7 +2,10 @@
 
 Whoever can see the event joins its broadcast group, and so does anyone without an account
 who brings the event's spectator token (an event setting; read-only: viewers only listen).
-Anyone else is refused with close code 4404 before the handshake completes. Messages, as JSON:
+Anyone else is refused with close code 4404 before the handshake completes. Turning the
+spectator link off (or replacing it) closes, at once, the open sockets it let in (close code
+4403): the event's group gets an access message and each socket checks its access again (each
+viewer's 10-second ping checks it too). Messages, as JSON:
 
 - a binary message for each frame of the race on track: a 4-byte big-endian length, that many
   bytes of JSON ``{"timing": {...}, "t": <unix time>}``, then the JPEG; built once by the
@@ -11,8 +14,11 @@ Anyone else is refused with close code 4404 before the handshake completes. Mess
   :func:`training.worker.racelive.race_timing`). A frame older than :data:`STALE_FRAME_S`
   when it reaches the hub is dropped: a lagging process skips frames rather than fall seconds
   behind the race;
-- ``{"type": "status", ...}``: a race went on track (``started``), or ended (``over``, with
-  ``winner`` and ``results``), or the queue changed (``queue``).
+- ``{"type": "status", ...}``: a race went on track (``started``, ``title``), or ended
+  (``over``, with ``winner``, ``winner_time_s`` and ``standings``: names, positions and
+  times), or the queue changed (``queue``, ``paused``). Spectators get only that
+  (:func:`~leaderboard.live.spectator_status`); the event's organiser and facilitators also
+  get the race id, its status and error and the raw results, model ids included.
 """
 
 from __future__ import annotations
@@ -31,15 +37,19 @@ from channels.db import database_sync_to_async
 from channels.generic.websocket import AsyncJsonWebsocketConsumer
 from django.conf import settings
 
-from leaderboard.access import can_view_event
-from leaderboard.live import broadcast_group
+from leaderboard.access import can_manage_event, can_view_event
+from leaderboard.live import broadcast_group, spectator_status
 from leaderboard.models import Event
 from training import live
 
 log = logging.getLogger(__name__)
 NOT_FOUND = 4404
+REVOKED = 4403
+"""The close code of a viewer whose access ended while watching (the link turned off)."""
 STALE_FRAME_S = 0.5
 """A frame this old (seconds since the worker built it) is not sent any more."""
+LISTEN_POLL_S = 1.0
+"""How often, at the longest, a process's listener checks that it still has viewers (s)."""
 
 
 def frame_age_s(payload: bytes) -> float:
@@ -79,14 +89,20 @@ class FrameHub:
     @classmethod
     async def _listen(cls, channel: str) -> None:
         """Subscribe (again after a Redis outage, every second) and write each fresh frame
-        to every viewer of this process."""
-        while channel in cls.viewers:
+        to every viewer of this process, for as long as this task is the channel's. It looks
+        at least every :data:`LISTEN_POLL_S`, so it ends once its viewers are gone even when
+        a cancel is lost inside the Redis client (a listener left behind blocked the test
+        loop's shutdown for 600 s on a loaded machine)."""
+        me = asyncio.current_task()
+        while cls.tasks.get(channel) is me:
             client = aioredis.Redis.from_url(settings.REDIS_URL)
             pubsub = client.pubsub()
             try:
                 await pubsub.subscribe(channel)
-                async for message in pubsub.listen():
-                    if message.get("type") != "message":
+                while cls.tasks.get(channel) is me:
+                    message = await pubsub.get_message(ignore_subscribe_messages=True,
+                                                       timeout=LISTEN_POLL_S)  # fmt: skip
+                    if message is None or message.get("type") != "message":
                         continue
                     data = message["data"]
                     if frame_age_s(data) > STALE_FRAME_S:
@@ -116,38 +132,72 @@ def may_watch(user, event: Event, token: str) -> bool:
 
 class BroadcastConsumer(AsyncJsonWebsocketConsumer):
     group = ""
+    detail = False
+    """Whether this viewer runs the event (organiser, facilitator): status messages whole."""
 
     @database_sync_to_async
-    def watched_event(self) -> Event | None:
+    def watched_event(self) -> tuple[Event, bool] | None:
+        """The URL's event, and whether this viewer runs it, when they may watch; else None
+        (the only check, made on connect and again whenever the event's access changes)."""
         query = parse_qs(self.scope.get("query_string", b"").decode())
         token = (query.get("watch") or [""])[0]
+        user = self.scope.get("user")
         try:
             event = Event.objects.get(pk=int(self.scope["url_route"]["kwargs"]["event_id"]))
         except (KeyError, ValueError, Event.DoesNotExist):
             return None
-        return event if may_watch(self.scope.get("user"), event, token) else None
+        if not may_watch(user, event, token):
+            return None
+        return event, user is not None and can_manage_event(user, event)
 
     async def connect(self) -> None:
-        event = await self.watched_event()
-        if event is None:
+        found = await self.watched_event()
+        if found is None:
             await self.close(code=NOT_FOUND)
             return
+        event, self.detail = found
         self.group = broadcast_group(event.pk)
         await self.channel_layer.group_add(self.group, self.channel_name)
         await self.accept()
         FrameHub.join(live.broadcast_channel(self.group), self)
         await database_sync_to_async(live.mark_watching)(self.group)
 
-    async def disconnect(self, code: int) -> None:
+    async def _leave(self) -> None:
         if self.group:
-            FrameHub.leave(live.broadcast_channel(self.group), self)
-            await self.channel_layer.group_discard(self.group, self.channel_name)
+            group, self.group = self.group, ""
+            FrameHub.leave(live.broadcast_channel(group), self)
+            await self.channel_layer.group_discard(group, self.channel_name)
+
+    async def disconnect(self, code: int) -> None:
+        await self._leave()
+
+    async def _still_allowed(self) -> bool:
+        """Check again; a viewer who lost access (the spectator link turned off or replaced,
+        a racer removed from a private event) stops receiving anything and is closed."""
+        found = await self.watched_event()
+        if found is not None:
+            self.detail = found[1]
+            return True
+        await self._leave()  # before the close: no frame or message slips out after it
+        await self.close(code=REVOKED)
+        return False
 
     async def receive_json(self, content: Any, **kwargs: Any) -> None:
-        """Viewers only listen; a ping keeps the worker sending frames."""
-        if self.group:
+        """Viewers only listen; a ping (every 10 s) keeps the worker sending frames, and checks
+        the viewer's access again (the safety net of a lost access message)."""
+        if self.group and await self._still_allowed():
             await database_sync_to_async(live.mark_watching)(self.group)
 
+    async def raceday_access(self, message: dict) -> None:
+        """The event's access changed (:func:`leaderboard.live.broadcast_access_changed`)."""
+        if self.group:
+            await self._still_allowed()
+
     async def raceday_status(self, message: dict) -> None:
-        await self.send_json({**{k: v for k, v in message.items() if k != "type"},
-                              "type": "status"})  # fmt: skip
+        if not self.group:
+            return
+        if self.detail:
+            await self.send_json({**{k: v for k, v in message.items() if k != "type"},
+                                  "type": "status"})  # fmt: skip
+        else:
+            await self.send_json(spectator_status(message))

@@ -126,7 +126,7 @@ def event_update(*, event: Event, user, **fields: Any) -> Event:
         fields.pop("season", None)
         fields.pop("division", None)
     with transaction.atomic():
-        event = Event.objects.select_for_update().get(pk=event.pk)
+        event = Event.objects.select_for_update(no_key=True).get(pk=event.pk)
         changed = [name for name, value in fields.items() if getattr(event, name) != value]
         if event.submissions.exists() and set(changed) & set(RULE_FIELDS):
             raise LeagueError(

@@ -12,6 +12,10 @@ No bracket is ever left stuck: a match whose race failed is run again once, then
 seed goes through; a race nobody finished is won by the car furthest on (the race's winner),
 or, if no car moved, by the better seed; a withdrawn racer's opponent goes through without a
 race. Each such decision is written on the match (``note``).
+
+A community race's races count against its organiser's job quota (:func:`race_charged_to`;
+``RACECRAFT_MAX_ACTIVE_JOBS_PER_USER``): a match the quota holds back is not decided, it waits
+(noted on the match) and starts when a bracket race ends or the minute's reconcile finds room.
 """
 
 from __future__ import annotations
@@ -27,11 +31,25 @@ from leaderboard.models import BracketMatch, Event, Notification, RaceDaySlot, S
 from leaderboard.selectors import leaderboard_rows
 from training.models import JobStatus, RaceJob, RaceType
 from training.services import ServiceError
+from training.services.jobs import JobQuotaError
 from training.services.races import race_start_entries
 
 log = logging.getLogger(__name__)
 BRACKET_SIZES = (4, 8, 16, 32)
 MAX_RACE_ATTEMPTS = 2
+QUOTA_WAIT_NOTE = "waits for one of the organiser's jobs to finish (their job quota is full)"
+
+
+class LeagueQuotaError(LeagueError):
+    """A race refused because the user it is charged to (a community event's organiser) has
+    no job to spare: nothing was queued and nothing is lost; it can run once one finishes."""
+
+
+def race_charged_to(event: Event):
+    """Who an event's races count against: a community race's organiser (they decide when its
+    turns and matches run; the entrants do not, so an organiser can never spend an entrant's
+    quota); None for a public event, which the operator's facilitators run for the league."""
+    return event.organiser if event.is_private else None
 
 
 def _state(event: Event) -> tuple[brackets.Bracket, list[int], set[int]]:
@@ -54,7 +72,7 @@ def bracket_seed(*, event: Event, user) -> brackets.Bracket:
     if event.bracket_size not in BRACKET_SIZES:
         raise LeagueError("this event has no bracket (set its size to 4, 8, 16 or 32)")
     with transaction.atomic():
-        event = Event.objects.select_for_update().get(pk=event.pk)
+        event = Event.objects.select_for_update(no_key=True).get(pk=event.pk)
         if event.bracket:
             raise LeagueError("the bracket is already seeded")
         rows = leaderboard_rows(event)
@@ -73,7 +91,7 @@ def bracket_withdraw(*, event: Event, user, submission: Submission) -> None:
     if submission.racer_id != user.pk and not can_manage_event(user, event):
         raise LeagueError("only the racer or the event's organiser can withdraw an entry")
     with transaction.atomic():
-        event = Event.objects.select_for_update().get(pk=event.pk)
+        event = Event.objects.select_for_update(no_key=True).get(pk=event.pk)
         if not event.bracket:
             raise LeagueError("the bracket is not seeded yet")
         bracket, seeds, withdrawn = _state(event)
@@ -100,7 +118,7 @@ def bracket_race_finished(*, race_id: int) -> BracketMatch | None:
     if match is None:
         return None
     with transaction.atomic():
-        event = Event.objects.select_for_update().get(pk=match.event_id)
+        event = Event.objects.select_for_update(no_key=True).get(pk=match.event_id)
         match = BracketMatch.objects.select_related("race").get(pk=match.pk)
         race = match.race
         if match.winner_id is not None or race is None or race.pk != race_id:
@@ -196,14 +214,39 @@ def match_race(event: Event, match: BracketMatch, *, paced: bool = False,
 def _launch(event: Event, match: BracketMatch) -> None:
     try:
         race = match_race(event, match)
+    except LeagueQuotaError:
+        # Not a reason to decide the match: it waits (race None) and starts when a race of
+        # the bracket ends or the minute's reconcile finds the organiser a free job.
+        if match.note != QUOTA_WAIT_NOTE:
+            match.note = QUOTA_WAIT_NOTE
+            match.save(update_fields=["note"])
+            transaction.on_commit(lambda: bracket_changed(event.pk))
+        return
     except (LeagueError, ServiceError) as exc:
         message = getattr(exc, "message", str(exc))
         _decide(event, match, match.top_id, f"the race could not start ({message}); "
                 "the better qualifier goes through")  # fmt: skip
         return
-    match.race, match.attempts = race, match.attempts + 1
-    match.save(update_fields=["race", "attempts"])
+    match.race, match.attempts, match.note = race, match.attempts + 1, ""
+    match.save(update_fields=["race", "attempts", "note"])
     transaction.on_commit(lambda: bracket_changed(event.pk))
+
+
+def brackets_resume() -> int:
+    """Start the bracket matches that waited for their organiser's job quota (a safety net
+    beside the start that follows each bracket race's end). Returns how many started."""
+    waiting = BracketMatch.objects.filter(
+        winner__isnull=True, race__isnull=True, event__bracket_on_race_day=False,
+        note=QUOTA_WAIT_NOTE,
+    )  # fmt: skip
+    started = 0
+    for event_id in set(waiting.values_list("event_id", flat=True)):
+        with transaction.atomic():
+            event = Event.objects.select_for_update(no_key=True).get(pk=event_id)
+            before = BracketMatch.objects.filter(event=event, race__isnull=False).count()
+            _advance(event)
+            started += BracketMatch.objects.filter(event=event, race__isnull=False).count() - before
+    return started
 
 
 def entry_race(
@@ -218,7 +261,8 @@ def entry_race(
 ) -> RaceJob:
     """A race job of ``submissions`` (one alone: a solo run) on the event's track, with its
     bots and penalties, each car its frozen entry (so deleting or retraining a model changes
-    nothing here). Raises :class:`LeagueError`."""
+    nothing here), charged to :func:`race_charged_to`. Raises :class:`LeagueError`, and
+    :class:`LeagueQuotaError` when the organiser has no job to spare (nothing is queued)."""
     entries = []
     for sub in submissions:
         model_id = sub.entered_model_id or sub.model_id
@@ -240,8 +284,14 @@ def entry_race(
             bot_speed=event.bot_speed_mps, round_number=round_number, title=title,
             off_track_penalty_s=event.off_track_penalty_s,
             crash_penalty_s=event.collision_penalty_s, paced=paced,
-            broadcast_group=broadcast_group,
+            broadcast_group=broadcast_group, charged_to=race_charged_to(event),
         )  # fmt: skip
+    except JobQuotaError as exc:
+        raise LeagueQuotaError(
+            f"this community race's races count against its organiser's jobs, and the "
+            f"organiser already has {exc.most} queued or running, the most allowed; nothing "
+            "was started: try again once one of them finishes"
+        ) from None
     except ServiceError as exc:
         raise LeagueError(exc.message) from None
 
@@ -249,7 +299,8 @@ def entry_race(
 def races_reconcile() -> int:
     """A safety net for a missed ``race_finished`` (a worker cut off between the race's end
     and the league's bookkeeping): every race-day turn and bracket match whose race has ended
-    is recorded now. Idempotent; returns how many were recorded."""
+    is recorded now, and the matches that waited for their organiser's job quota start if
+    it has room. Idempotent; returns how many were recorded or started."""
     from leaderboard.raceday import race_day_race_finished  # raceday imports this module
 
     recorded = 0
@@ -261,4 +312,4 @@ def races_reconcile() -> int:
     for race_id in list(BracketMatch.objects.filter(winner__isnull=True, race__status__in=ended)
                         .values_list("race_id", flat=True)):  # fmt: skip
         recorded += bracket_race_finished(race_id=race_id) is not None
-    return recorded
+    return recorded + brackets_resume()

@@ -66,5 +66,39 @@ def broadcast_group(event_id: int) -> str:
 
 def race_day_changed(event_id: int, message: dict) -> None:
     """Tell the broadcast page and the facilitator's page what happened (a race on track, a
-    race over with its winner, the queue changed)."""
+    race over with its winner, the queue changed). The message may carry the organisers'
+    detail (race and model ids, the error); each viewer who does not run the event gets only
+    :func:`spectator_status` of it."""
     live.send(broadcast_group(event_id), {"type": "raceday.status", **message})
+
+
+SPECTATOR_KEYS = ("started", "title", "over", "winner", "winner_time_s", "standings", "queue",
+                  "paused")  # fmt: skip
+"""What a spectator's status message may hold: display names, times, positions and flags."""
+STANDING_KEYS = ("position", "name", "finished", "laps", "total_time_s")
+
+
+def spectator_status(message: dict) -> dict:
+    """A race-day status message as spectators (anyone who does not run the event) receive it:
+    only :data:`SPECTATOR_KEYS` (a whitelist, so a new internal field never leaks by default),
+    each standing only :data:`STANDING_KEYS`: no race or model ids, no status or error text."""
+    shown = {key: message[key] for key in SPECTATOR_KEYS if key in message}
+    if "standings" in shown:
+        shown["standings"] = [{key: car[key] for key in STANDING_KEYS if key in car}
+                              for car in shown["standings"] or []]  # fmt: skip
+    return {**shown, "type": "status"}
+
+
+def race_standings(cars: list[dict]) -> list[dict]:
+    """A finished race's cars as the broadcast shows them (:data:`STANDING_KEYS`)."""
+    return [{key: car.get(key) for key in STANDING_KEYS} for car in cars]
+
+
+ACCESS_MESSAGE_TYPE = "raceday.access"
+
+
+def broadcast_access_changed(event_id: int) -> bool:
+    """Tell every open broadcast socket of the event to check its access again (the spectator
+    link was turned off or replaced): those let in only by the old link close at once.
+    False when the channel layer could not be reached."""
+    return live.send(broadcast_group(event_id), {"type": ACCESS_MESSAGE_TYPE})

@@ -17,7 +17,12 @@ from django.db.models import Max
 
 from leaderboard.access import LeagueError, can_manage_event
 from leaderboard.headtohead import entry_race, match_race
-from leaderboard.live import broadcast_group, race_day_changed
+from leaderboard.live import (
+    broadcast_access_changed,
+    broadcast_group,
+    race_day_changed,
+    race_standings,
+)
 from leaderboard.models import Event, Notification, RaceDaySlot, Submission
 from training.models import FINISHED_JOB_STATUSES, JobStatus, RaceJob
 
@@ -35,7 +40,7 @@ def race_day_add(*, event: Event, user, submission: Submission) -> RaceDaySlot:
     if submission.event_id != event.pk:
         raise LeagueError("that entry belongs to another event")
     with transaction.atomic():
-        Event.objects.select_for_update().get(pk=event.pk)
+        Event.objects.select_for_update(no_key=True).get(pk=event.pk)
         last = RaceDaySlot.objects.filter(event=event).aggregate(m=Max("position"))["m"] or 0
         slot = RaceDaySlot.objects.create(event=event, submission=submission, position=last + 1)
         _notify_next(event)
@@ -47,7 +52,7 @@ def race_day_move(*, slot: RaceDaySlot, user, up: bool) -> None:
     """Swap a waiting turn with the waiting turn before (``up``) or after it."""
     _check(slot.event, user)
     with transaction.atomic():
-        Event.objects.select_for_update().get(pk=slot.event_id)
+        Event.objects.select_for_update(no_key=True).get(pk=slot.event_id)
         waiting = list(RaceDaySlot.objects.filter(event_id=slot.event_id,
                                                   status=RaceDaySlot.Status.WAITING))  # fmt: skip
         index = next((i for i, s in enumerate(waiting) if s.pk == slot.pk), None)
@@ -84,10 +89,15 @@ def race_day_pause(*, event: Event, user, paused: bool) -> None:
 
 
 def race_day_launch(*, event: Event, user) -> RaceDaySlot:
-    """Put the next waiting turn on track: a race job paced at real time, broadcast."""
+    """Put the next waiting turn on track: a race job paced at real time, broadcast. A
+    community race's turn counts against its organiser's job quota: when it is full this
+    raises :class:`~leaderboard.headtohead.LeagueQuotaError` and the turn stays first in the
+    queue (nothing is started, nothing is lost)."""
     _check(event, user)
     with transaction.atomic():
-        event = Event.objects.select_for_update().get(pk=event.pk)
+        # NO KEY: a submission written to this event meanwhile (it holds its racer's row,
+        # which the quota below locks too) must not wait on this lock: no deadlock.
+        event = Event.objects.select_for_update(no_key=True).get(pk=event.pk)
         if event.race_day_paused:
             raise LeagueError("the race day is paused; resume it to launch the next turn")
         if RaceDaySlot.objects.filter(event=event, status=RaceDaySlot.Status.RUNNING).exists():
@@ -130,8 +140,12 @@ def race_day_race_finished(*, race_id: int) -> RaceDaySlot | None:
     winner = next((car for car in race.car_rows if car.get("model") == race.results.get("winner")),
                   None)  # fmt: skip
     race_day_changed(slot.event_id, {
-        "race": race_id, "over": True, "status": race.status, "error": race.error,
-        "winner": winner.get("name") if winner else None, "results": race.results,
+        # everyone: names and times (leaderboard.live.spectator_status keeps only these)
+        "over": True, "winner": winner.get("name") if winner else None,
+        "winner_time_s": winner.get("total_time_s") if winner and winner.get("finished")
+        else None, "standings": race_standings(race.car_rows),
+        # those who run the event: the race, its status and error, the raw results
+        "race": race_id, "status": race.status, "error": race.error, "results": race.results,
     })  # fmt: skip
     return slot
 
@@ -147,11 +161,15 @@ def race_day_stop(*, event: Event, user) -> None:
 
 
 def race_day_spectator_link(*, event: Event, user, enabled: bool) -> str:
-    """Turn the read-only spectator link on (a new token) or off; returns the token."""
+    """Turn the read-only spectator link on (a new token) or off; returns the token. Either
+    way the old link stops working at once: its open broadcast sockets are told to check
+    their access again and close (:func:`broadcast_access_changed`)."""
     _check(event, user)
     token = secrets.token_urlsafe(18) if enabled else ""
     Event.objects.filter(pk=event.pk).update(spectator_token=token)
     event.spectator_token = token
+    event_id = event.pk
+    transaction.on_commit(lambda: broadcast_access_changed(event_id))
     return token
 
 

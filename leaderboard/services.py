@@ -21,6 +21,7 @@ from leaderboard.profiles import profile_for
 from training.errors import StoreError
 from training.models import EvaluationJob, JobStatus, RacingModel
 from training.services import ServiceError, evaluation_start, model_freeze, model_metadata
+from training.services.jobs import JobQuotaError
 
 log = logging.getLogger(__name__)
 
@@ -31,9 +32,14 @@ def submission_create(*, event: Event, user, model: RacingModel) -> Submission:
     collision freezes the car for the penalty and respawns it, so lap times include them) on
     the evaluation queue.
 
+    The evaluation is the racer's job: it counts against their job quota
+    (``RACECRAFT_MAX_ACTIVE_JOBS_PER_USER``) and waits its turn in the fair order of
+    evaluations (:mod:`training.services.job_queue`) like their own.
+
     Refused (LeagueError) when the event is not open or not for this racer, the racer has no
     alias yet, the model is not theirs or not ready, a submission of theirs to this event is
-    still being evaluated, or they have used the event's submissions.
+    still being evaluated, they have used the event's submissions, or they already have their
+    quota of jobs queued or running (the submission is then not counted: they submit again).
     """
     event_entry_check(event=event, user=user)
     if model.owner_id != user.pk:
@@ -75,6 +81,13 @@ def submission_create(*, event: Event, user, model: RacingModel) -> Submission:
                 crash_penalty_s=event.collision_penalty_s,
                 purpose="submission",
             )
+        except JobQuotaError as exc:
+            raise LeagueError(
+                f"you already have {exc.most} jobs queued or running, the most allowed, and a "
+                "submission's evaluation is one more; this submission was not used: submit "
+                "again once one of them finishes (or stop one)",
+                field="model",
+            ) from None
         except ServiceError as exc:
             raise LeagueError(exc.message, field="model") from None
         submission = Submission.objects.create(

@@ -9,16 +9,17 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from racing import carstep
 from racing.actions import ActionSpec
-from racing.car import REPORTED_POINT_AHEAD_M, CarSim, Pose
+from racing.car import CarSim, Pose
+from racing.carstep import CarOnTrack
 from racing.lidar import LidarSensor
-from racing.objects import KIND_BOT, RaceObject
+from racing.objects import RaceObject
 from racing.params import build_params
 from racing.race import RaceConfig, RaceType
 from racing.reward import RewardFunction, RewardValueError, judge_reward, progress_reward
 from racing.rules import RaceRules, RaceTracker, Status
 from racing.sensors import CameraSensor, ReferenceCamera, ground_for, validate_sensors
-from racing.simtrace import TraceRow
 from racing.track import Location, Track, TrackError
 from racing.tracks import TrackCatalog
 from racing.world import RaceWorld
@@ -73,7 +74,8 @@ class RacingEnv(gym.Env):
     within 1 m of an object starts in the other lane; one respawned near a box goes 1 m behind
     it in the other lane.
 
-    **Step**: 1/15 s of simulated time (DeepRacer's 15 Hz), 4 physics sub-steps.
+    **Step**: 1/15 s of simulated time (DeepRacer's 15 Hz), 4 physics sub-steps, through
+    :mod:`racing.carstep` (the head-to-head race drives its cars through the same step).
 
     **Reward**: ``reward_function(params)`` as a float each step (see :mod:`racing.params`).
     NaN, ±inf or a value outside ±1e5 raises :class:`RewardValueError` naming the step.
@@ -167,13 +169,22 @@ class RacingEnv(gym.Env):
                 self.sim.client, ground_for(self.track, resolution=CAMERA_RESOLUTION_M, rgb=True)
             )
             self.camera.observe = lambda pose, objects=(): reference.render(pose)[..., None]
-        self.tracker = RaceTracker(self.rules, self.track.length, self.track.closed)
+        self.car = CarOnTrack(
+            self.sim, RaceTracker(self.rules, self.track.length, self.track.closed)
+        )
         self.episode = -1
-        self.pose = Pose(0.0, 0.0, 0.0)
         self._view = None
-        self._hint: int | None = None
-        self._point = (0.0, 0.0)
         self.params: dict = {}
+
+    @property
+    def pose(self) -> Pose:
+        """The car's origin (rear-axle middle), heading and speed now."""
+        return self.car.pose
+
+    @property
+    def tracker(self) -> RaceTracker:
+        """This episode's judge: progress, laps, resets, simulated time."""
+        return self.car.tracker
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -202,19 +213,19 @@ class RacingEnv(gym.Env):
             offset = float(options["offset"])
         else:
             offset = (self.world.start_offset(start_s) if self._has_objects else None) or 0.0
-        self._place_at(
+        loc = carstep.place(
+            self.car,
+            self.track,
             start_s,
             offset=offset,
             yaw_offset=math.radians(float(options.get("heading_offset_deg", 0.0))),
         )
-        loc = self.track.locate(*self._point)
-        self._hint = loc.segment
-        self.tracker = RaceTracker(self.rules, self.track.length, self.track.closed)
+        self.car.tracker = RaceTracker(self.rules, self.track.length, self.track.closed)
         self.tracker.start(loc.s)
         self.sim_time = 0.0
         self.params = self._params(
             loc=loc,
-            wheels_on_track=self._wheels_on_track(),
+            wheels_on_track=carstep.wheels_on_track(self.track, self.pose),
             steering_angle=0.0,
             speed=0.0,
             progress=0.0,
@@ -235,30 +246,17 @@ class RacingEnv(gym.Env):
         if self.episode < 0:
             raise RuntimeError("call reset() before step()")
         steering, speed = self.actions.decode(action)
-        old_point = self._point
         if self._has_objects:
             self.world.advance(self.sim.dt)  # bots move first: contacts come from this step
-        self.pose = self.sim.step(steering, speed)
-        self._point = self.pose.point_ahead(REPORTED_POINT_AHEAD_M)
-        loc = self.track.locate(self._point[0], self._point[1], self._hint)
-        self._hint = loc.segment
-        wheels = self._wheels_on_track()
-        moved = math.hypot(self._point[0] - old_point[0], self._point[1] - old_point[1])
-        crash = self.world.crash(loc.s, (self.pose.x, self.pose.y)) if self._has_objects else None
-        judged = self.tracker.update(
-            s=loc.s,
-            dt=self.sim.dt,
-            moved_m=moved,
-            wheels_on_track=wheels,
-            crashed=crash is not None,
-        )
+        step = carstep.drive(self.car, self.track, steering, speed, self._crash)
+        judged, loc = step.judged, step.loc
         self.sim_time = self.tracker.sim_time
         self.params = self._params(
             loc=loc,
-            wheels_on_track=wheels,
+            wheels_on_track=step.wheels,
             steering_angle=steering,
             speed=speed,
-            progress=self.tracker.progress,
+            progress=step.progress,
             steps=self.tracker.steps,
             is_crashed=judged.status is Status.CRASHED,
             sim_time=self.sim_time,
@@ -267,33 +265,17 @@ class RacingEnv(gym.Env):
         if judged.reset:
             if self._has_objects:
                 self.world.advance(judged.penalty_s)  # the bots drive on during the penalty
-            self._respawn(loc, crash if judged.status is Status.CRASHED else None)
+            spot_near = self.world.respawn_spot if self._has_objects else None
+            carstep.respawn(self.car, self.track, step, spot_near=spot_near)
         obs = self._observe()
         done = judged.done
-        trace = TraceRow(
+        trace = carstep.trace_row(
+            self.car,
+            self.track,
+            step,
             episode=self.episode,
-            steps=self.tracker.steps,
-            x=self._point[0] if not judged.reset else loc.x,
-            y=self._point[1] if not judged.reset else loc.y,
-            yaw=self.params["heading"],
-            steer=steering,
-            throttle=speed,
-            action=(
-                int(action)
-                if self.actions.kind == "discrete"
-                else (round(steering, 4), round(speed, 4))
-            ),
+            action=carstep.trace_action(self.actions, action, (steering, speed)),
             reward=reward,
-            done=done or judged.truncated,
-            all_wheels_on_track=self.params["all_wheels_on_track"],
-            progress=self.params["progress"],
-            closest_waypoint=self._closest_waypoint(loc),
-            track_len=self.track.length,
-            tstamp=self.sim_time,
-            episode_status=judged.status.value,
-            pause_duration=judged.penalty_s,
-            obstacle_crash_counter=self.tracker.current_lap.crashes,
-            wall_clock=0.0,  # stamped by whoever records the row: steps stay deterministic
         )
         info = {
             "status": judged.status.value,
@@ -335,37 +317,11 @@ class RacingEnv(gym.Env):
             self._tracks[reverse] = track
         self.track = track
 
-    def _place_at(self, s: float, offset: float = 0.0, yaw_offset: float = 0.0) -> None:
-        """Put the car at rest with its reported point ``offset`` metres left of the centre line
-        at ``s``, facing along the track turned by ``yaw_offset`` radians."""
-        px, py = self.track.point_at(s, offset)
-        yaw = self.track.heading_at(s) + yaw_offset
-        x = px - REPORTED_POINT_AHEAD_M * math.cos(yaw)
-        y = py - REPORTED_POINT_AHEAD_M * math.sin(yaw)
-        self.sim.place(x, y, yaw)
-        self.pose = Pose(x, y, yaw)
-        self._point = (px, py)
-
-    def _respawn(self, loc: Location, crash: RaceObject | None) -> None:
-        """After a forgiven failure, at rest: where it is after running into a bot; 1 m behind a
-        box in the other lane when one is close (progress goes back with it); else on the
-        nearer lane at the last progress."""
-        if crash is not None and crash.kind == KIND_BOT:
-            self.sim.place(self.pose.x, self.pose.y, self.pose.yaw)
-            self.tracker.respawned_at(loc.s)
-            return
-        spot = self.world.respawn_spot(loc.s) if self._has_objects else None
-        if spot is not None:
-            self._place_at(spot.s, offset=spot.offset)
-        else:
-            lane = self.track.width_at(loc) / 4
-            self._place_at(loc.s, offset=lane if loc.left else -lane)
-        new_loc = self.track.locate(*self._point)
-        self._hint = new_loc.segment
-        if spot is not None:
-            self.tracker.advance(new_loc.s)
-        else:
-            self.tracker.respawned_at(new_loc.s)
+    def _crash(self, loc: Location) -> RaceObject | None:
+        """What the car ran into this step by DeepRacer's rules (:meth:`RaceWorld.crash`)."""
+        if not self._has_objects:
+            return None
+        return self.world.crash(loc.s, (self.pose.x, self.pose.y))
 
     def _params(self, *, loc: Location, **state) -> dict:
         """This step's ``params``; ``object_in_camera`` asks the camera about the next object."""
@@ -391,11 +347,3 @@ class RacingEnv(gym.Env):
             return image
         reading = self.lidar.observe(self.pose, objects, self.np_random)
         return {self.sensors[0]: image, self.sensors[1]: reading}
-
-    def _wheels_on_track(self) -> int:
-        xs, ys = self.pose.wheel_contacts()
-        return int(np.count_nonzero(self.track.on_track(np.asarray(xs), np.asarray(ys))))
-
-    def _closest_waypoint(self, loc) -> int:
-        behind, ahead = self.track.closest_waypoints(loc)
-        return behind if loc.fraction < 0.5 else ahead

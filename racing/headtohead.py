@@ -31,18 +31,17 @@ the LIDAR noise come from generators seeded with it; each car has its own PyBull
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from racing import carstep
 from racing.actions import ActionSpaceError, ActionSpec
 from racing.bodies import ObjectBodies
-from racing.car import REPORTED_POINT_AHEAD_M, CarSim, Pose
+from racing.car import CarSim
 from racing.lidar import LidarSensor
 from racing.objects import BotFleet, Lanes, RaceObject
-from racing.params import heading_deg
 from racing.race import LANE_INNER, LANE_OUTER, RaceConfig, RaceType
 from racing.racecar import (
     GRID_SPACING_M,
@@ -58,7 +57,7 @@ from racing.racecar import (
 from racing.rules import LapRecord, RaceRules, RaceTracker, Status
 from racing.sensors import CameraSensor, ground_for, validate_sensors
 from racing.simtrace import TraceRow
-from racing.track import Location, Track, TrackError
+from racing.track import Track, TrackError
 
 __all__ = [
     "GRID_SPACING_M",
@@ -175,7 +174,7 @@ class HeadToHeadRace:
             slot = car.grid_slot
             s = (-slot * GRID_SPACING_M) % self.track.length
             lane = LANE_INNER if slot % 2 == 0 else LANE_OUTER
-            self._place(car, s, self.lanes.offset(s, lane))
+            carstep.place(car, self.track, s, self.lanes.offset(s, lane))
             car.tracker.start(car.s)
         return self.observations()
 
@@ -193,8 +192,8 @@ class HeadToHeadRace:
                 continue
             try:
                 decoded[car.index] = car.actions.decode(actions[car.index])
-                chosen[car.index] = self._trace_action(car, actions[car.index],
-                                                       decoded[car.index])  # fmt: skip
+                chosen[car.index] = carstep.trace_action(car.actions, actions[car.index],
+                                                         decoded[car.index])  # fmt: skip
             except ActionSpaceError as exc:
                 self.retire(car.index, f"its policy chose an impossible action: {exc}")
         driving = [car for car in self.cars if car.index in decoded]
@@ -264,51 +263,13 @@ class HeadToHeadRace:
         reading = car.lidar.observe(car.pose, objects, car.rng)
         return {car.racer.sensors[0]: image, car.racer.sensors[1]: reading}
 
-    def _place(self, car: RaceCar, s: float, offset: float) -> None:
-        """Put the car at rest with its reported point ``offset`` metres left of ``s``."""
-        px, py = self.track.point_at(s, offset)
-        yaw = self.track.heading_at(s)
-        x = px - REPORTED_POINT_AHEAD_M * math.cos(yaw)
-        y = py - REPORTED_POINT_AHEAD_M * math.sin(yaw)
-        car.sim.place(x, y, yaw)
-        car.pose = Pose(x, y, yaw)
-        car.point = (px, py)
-        loc = self.track.locate(px, py)
-        car.hint, car.s = loc.segment, loc.s
-
-    @staticmethod
-    def _trace_action(
-        car: RaceCar, action: object, decoded: tuple[float, float]
-    ) -> int | tuple[float, float]:
-        """The sim-trace's action column: the index, or the continuous pair driven."""
-        if car.actions.kind == "discrete":
-            return int(np.asarray(action).reshape(-1)[0])
-        return (round(decoded[0], 4), round(decoded[1], 4))
-
     def _drive(
         self, car: RaceCar, steering: float, speed: float, action: int | tuple[float, float]
     ) -> StepOutcome:
-        old = car.point
-        car.pose = car.sim.step(steering, speed)
-        car.point = car.pose.point_ahead(REPORTED_POINT_AHEAD_M)
-        loc = self.track.locate(car.point[0], car.point[1], car.hint)
-        car.hint, car.s = loc.segment, loc.s
-        xs, ys = car.pose.wheel_contacts()
-        wheels = int(np.count_nonzero(self.track.on_track(np.asarray(xs), np.asarray(ys))))
-        judged = car.tracker.update(
-            s=loc.s,
-            dt=car.sim.dt,
-            moved_m=math.hypot(car.point[0] - old[0], car.point[1] - old[1]),
-            wheels_on_track=wheels,
-            crashed=self._crashed(car),
-        )
-        if judged.reset and judged.status is not Status.CRASHED:
-            lane = self.track.width_at(loc) / 4
-            self._place(car, loc.s, lane if loc.left else -lane)
-            car.tracker.respawned_at(car.s)
-        elif judged.reset:  # after a crash the car stays where it is, at rest
-            car.sim.place(car.pose.x, car.pose.y, car.pose.yaw)
-            car.pose = Pose(car.pose.x, car.pose.y, car.pose.yaw)
+        step = carstep.drive(car, self.track, steering, speed, lambda loc: self._crashed(car))
+        judged = step.judged
+        if judged.reset:
+            carstep.respawn(car, self.track, step)
         finished = car.tracker.laps[-1] if judged.lap_finished else None
         car.time_sectors(finished)
         if judged.done or judged.truncated:
@@ -319,54 +280,34 @@ class HeadToHeadRace:
                 car.state, car.reason = CarState.TIME_UP, "lap time limit"
             else:
                 car.state, car.reason = CarState.OUT, f"{judged.status.label}, no resets left"
-        trace = TraceRow(
-            episode=0,
-            steps=car.tracker.steps,
-            x=car.point[0],
-            y=car.point[1],
-            yaw=heading_deg(car.pose.yaw),
-            steer=steering,
-            throttle=speed,
-            action=action,
-            reward=0.0,
-            done=not car.on_track,
-            all_wheels_on_track=wheels == 4,
-            progress=car.tracker.progress,
-            closest_waypoint=self._closest_waypoint(loc),
-            track_len=self.track.length,
-            tstamp=car.tracker.sim_time,
-            episode_status=judged.status.value,
-            pause_duration=judged.penalty_s,
-            obstacle_crash_counter=car.tracker.current_lap.crashes,
-            wall_clock=0.0,
+        # This log has always written where a respawned car was put (RacingEnv: where judged).
+        trace = carstep.trace_row(
+            car, self.track, step, episode=0, action=action, reward=0.0, where_put=True
         )
         return StepOutcome(
             judged.status, judged.reset, judged.penalty_s, finished, not car.on_track, trace
         )
 
-    def _crashed(self, car: RaceCar) -> bool:
-        """DeepRacer's rule: touching a bot or a racer is a crash for the one behind."""
+    def _crashed(self, car: RaceCar) -> RaceObject | None:
+        """DeepRacer's rule: touching a bot or a racer is a crash for the one behind; what
+        ``car`` ran into, or ``None``."""
         index = car.bodies.touching()
         if index is None:
-            return False
+            return None
         bots = self.bots
         if index >= len(bots):  # another racer: compare the same reported points
             other = self._others(car)[index - len(bots)]
-            return self._gap_ahead(car.s, other.s) > 0.0
+            return other.as_object() if self._gap_ahead(car.s, other.s) > 0.0 else None
         bot = bots[index]
         if self._gap_ahead(car.s, self.track.locate(bot.x, bot.y).s) > 0.0:
-            return True
+            return bot
         assert self.fleet is not None
         pause = self.rules.bot_pause()
         if not self.fleet.paused and pause > 0.0:
             self.fleet.pause(pause)
-        return False
+        return None
 
     def _gap_ahead(self, car_s: float, other_s: float) -> float:
         """Centre-line distance from ``car_s`` forward to ``other_s``, -L/2..L/2, metres."""
         half = self.track.length / 2
         return (other_s - car_s + half) % self.track.length - half
-
-    def _closest_waypoint(self, loc: Location) -> int:
-        behind, ahead = self.track.closest_waypoints(loc)
-        return behind if loc.fraction < 0.5 else ahead

@@ -78,10 +78,8 @@
   function showWinner(msg) {
     const name = document.querySelector("[data-winner-name]");
     const time = document.querySelector("[data-winner-time]");
-    const cars = (msg.results && msg.results.cars) || [];
-    const first = cars.find((c) => c.model === msg.results.winner);
     name.textContent = msg.winner || "No winner";
-    time.textContent = first && first.finished ? raceClock(first.total_time_s) : "";
+    time.textContent = typeof msg.winner_time_s === "number" ? raceClock(msg.winner_time_s) : "";
     overlay.hidden = false;
   }
 
@@ -118,9 +116,13 @@
         if (msg.over) { showWinner(msg); refreshBoard(); }
       }
     };
-    socket.onclose = () => {
+    socket.onclose = (e) => {
       if (pinger) clearInterval(pinger);
       live.dataset.state = "off";
+      if (e.code === 4403 || e.code === 4404) {  // the link was turned off: no retry
+        live.textContent = "Broadcast closed";
+        return;
+      }
       live.textContent = "Reconnecting…";
       setTimeout(connect, delay);
       delay = Math.min(delay * 2, 30000);

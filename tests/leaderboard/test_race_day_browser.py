@@ -126,6 +126,7 @@ def test_a_facilitator_runs_a_race_day_on_the_broadcast_page(browser, daphne, ce
         results = slot.race.results
         winner = next(c for c in results["cars"] if c["model"] == results["winner"])
         assert screen.inner_text("[data-winner-name]") == winner["name"]
+        assert screen.inner_text("[data-winner-time]") != ""  # from the spectators' payload
         assert slot.race.has_video and winner["finished"]
         shot(screen, f"broadcast-winner-{turn}")
         control.reload()

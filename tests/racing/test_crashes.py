@@ -79,7 +79,7 @@ def test_evaluation_crash_costs_the_penalty_and_respawns_behind_the_box(reinvent
     lap = env.tracker.current_lap
     assert (lap.crashes, lap.resets, lap.penalty_s) == (1, 1, 5.0)
     # 1 m behind the box, in the other lane (outer: right on this counter-clockwise track).
-    loc = reinvent.locate(*env._point)
+    loc = reinvent.locate(*env.car.point)
     assert box_s - loc.s == pytest.approx(1.0, abs=0.02)
     assert loc.left is False and loc.distance == pytest.approx(0.19, abs=0.03)
     assert env.sim.pose().speed == pytest.approx(0.0, abs=1e-6)
@@ -187,7 +187,7 @@ def test_evaluation_crash_into_a_bot_freezes_the_car_where_it_is(reinvent):
             break
     assert info["status"] == "crashed" and not terminated and info["penalty_s"] == 5.0
     # The car stays where it hit the bot, at rest; the bot drove on for the 5 s penalty.
-    assert reinvent.locate(*env._point).s == pytest.approx(info["params"]["projection_distance"])
+    assert reinvent.locate(*env.car.point).s == pytest.approx(info["params"]["projection_distance"])
     assert env.sim.pose().speed == pytest.approx(0.0, abs=1e-6)
     assert env.world.locations[0].s - bot_before == pytest.approx(0.3 * (5.0 + 1 / 15), abs=0.03)
     *_, terminated, _, info = env.step(STRAIGHT)

@@ -18,9 +18,12 @@ Queued jobs run in rounds, one job of each waiting owner a round:
 DeepRacer-on-AWS's issue #87 is the failure this prevents: one user's queue of jobs in
 front of everyone else's while capacity sits idle.
 
-Races (league head-to-head, race days) keep their own first-come order: a facilitator decides
-it. Quotas (``RACECRAFT_MAX_ACTIVE_JOBS_PER_USER``) are checked when a job is queued
-(:mod:`training.services.jobs`) and hold whatever order the jobs run in.
+A league submission's evaluation is an evaluation of its submitter's model, so it takes its
+turn here beside their own. Races (league head-to-head, race days) keep their own first-come
+order: a facilitator decides it. Quotas (``RACECRAFT_MAX_ACTIVE_JOBS_PER_USER``) are checked
+when a job is queued (:mod:`training.services.jobs`) and hold whatever order the jobs run in;
+they count every job a user causes: training, evaluations (their own and their submissions'),
+and the races charged to them (a community race's, to its organiser).
 """
 
 from __future__ import annotations

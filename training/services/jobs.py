@@ -35,6 +35,7 @@ from training.models import (
     ACTIVE_JOB_STATUSES,
     EvaluationJob,
     JobStatus,
+    RaceJob,
     RacingModel,
     TrainingJob,
 )
@@ -75,6 +76,7 @@ from training.signals import evaluation_finished
 __all__ = [
     "BROKER_DOWN_NOTE",
     "Job",
+    "JobQuotaError",
     "evaluation_start",
     "job_begin",
     "job_claim",
@@ -82,6 +84,7 @@ __all__ = [
     "job_fail",
     "job_heartbeat",
     "job_kind",
+    "job_quota_hold",
     "job_resumed_from",
     "job_stop",
     "job_stop_requested",
@@ -99,29 +102,54 @@ __all__ = [
 ]
 
 
+class JobQuotaError(ServiceError):
+    """A job refused because its user already has ``RACECRAFT_MAX_ACTIVE_JOBS_PER_USER`` jobs
+    queued or running (callers that queue jobs for a user, the league, word it for theirs)."""
+
+    def __init__(self, message: str, most: int) -> None:
+        super().__init__(message)
+        self.most = most
+
+
 def _active_job_count(user) -> int:
+    """Every job ``user`` causes that is queued or running: their training jobs, every
+    evaluation of their models (their own and their league submissions'), and the races
+    charged to them (:attr:`RaceJob.owner`: their own races and their community events')."""
     return (
         TrainingJob.objects.filter(model__owner=user, status__in=ACTIVE_JOB_STATUSES).count()
-        + EvaluationJob.objects.filter(
-            model__owner=user, status__in=ACTIVE_JOB_STATUSES, purpose="user"
-        ).count()
+        + EvaluationJob.objects.filter(model__owner=user, status__in=ACTIVE_JOB_STATUSES).count()
+        + RaceJob.objects.filter(owner=user, status__in=ACTIVE_JOB_STATUSES).count()
     )
 
 
 def _lock_owner(user) -> None:
     """Serialise one user's job starts (two clicks at once, two tabs): the quota is counted
     under a lock on the owner's row, so it holds under concurrency. Always taken before the
-    model's row (one lock order, no deadlock)."""
-    get_user_model().objects.select_for_update().filter(pk=user.pk).first()
+    model's row (one lock order, no deadlock). FOR NO KEY UPDATE: it serialises the quota
+    counts yet lets rows that merely refer to the user (a submission, a notification) be
+    written beside it."""
+    get_user_model().objects.select_for_update(no_key=True).filter(pk=user.pk).first()
 
 
 def _check_job_quota(user) -> None:
     most = limit("RACECRAFT_MAX_ACTIVE_JOBS_PER_USER", 2)
     if _active_job_count(user) >= most:
-        raise ServiceError(
-            f"you already have {most} jobs queued or running, the most allowed; wait for one "
-            "to finish or stop it"
+        raise JobQuotaError(
+            f"you already have {most} jobs queued or running, the most allowed (training, "
+            "evaluations, league submissions and your events' races all count); wait for one "
+            "to finish or stop it",
+            most,
         )
+
+
+def job_quota_hold(*, user) -> None:
+    """Hold ``user`` to their quota before a job charged to them is created: call it inside
+    the transaction that creates the job (the user's row stays locked until the commit, so
+    two starts at once cannot both pass). Raises :class:`JobQuotaError`."""
+    if not transaction.get_connection().in_atomic_block:
+        raise RuntimeError("job_quota_hold must run inside the transaction that queues the job")
+    _lock_owner(user)
+    _check_job_quota(user)
 
 
 # ------------------------------------------------------------------------------ starting
@@ -164,7 +192,9 @@ def evaluation_start(
     """Queue an evaluation of a trained model (3-5 laps, DeepRacer's penalties) in a race of
     ``race_type`` with ``race_config``'s boxes or bots (see :mod:`training.services.racing`;
     ``race_type`` None: the model's own race and settings); ``enqueue=False`` leaves it for
-    the caller to run in its own process."""
+    the caller to run in its own process. Every ``purpose`` counts against the model owner's
+    job quota (a league submission's evaluation is its submitter's job): raises
+    :class:`JobQuotaError` when it is full."""
     owned(model, user)
     track_id = track_id or model.track_id
     direction = direction or model.direction
@@ -179,15 +209,13 @@ def evaluation_start(
     except EvaluationError as exc:
         raise ServiceError(str(exc), field="laps" if "laps" in str(exc) else None) from None
     with transaction.atomic():
-        if purpose == "user":
-            _lock_owner(user)
+        _lock_owner(user)  # a league submission's evaluation is its submitter's job too
         model = RacingModel.objects.select_for_update().get(pk=model.pk)
         if not model.has_checkpoint:
             raise ServiceError("train this model before evaluating it")
         if model_has_active_jobs(model):
             raise ServiceError("this model is busy; wait for its current job to finish")
-        if purpose == "user":
-            _check_job_quota(user)
+        _check_job_quota(user)
         job = EvaluationJob.objects.create(
             model=model, track_id=track_id, direction=direction, race_type=race_type,
             race_config=race, laps=laps, off_track_penalty_s=off_track_penalty_s,

@@ -18,6 +18,7 @@ from training.models import RaceJob, RacingModel
 from training.rl.race import RaceError, RaceSettings
 from training.services.checks import track_catalog
 from training.services.job_states import enqueue_after_commit
+from training.services.jobs import job_quota_hold
 from training.services.model_files import model_metadata
 from training.services.racing import race_settings
 from training.services.trackfiles import tracks_sync_for
@@ -122,17 +123,22 @@ def race_start_entries(
     title: str = "",
     paced: bool = False,
     broadcast_group: str = "",
+    charged_to=None,
     **conditions,
 ) -> RaceJob:
     """Queue a league race of entries already frozen by the league (``{"model", "name",
     "checkpoint", "metadata", "tag"}``: the model may be deleted since, the race does not
-    need it); the league checked who may run it. Raises :class:`ServiceError`."""
+    need it); the league checked who may run it. ``charged_to``: the user whose job quota
+    the race counts against (its owner; a community event's organiser), or None (a public
+    event's: the operator's own league). Raises :class:`ServiceError`, and
+    :class:`~training.services.jobs.JobQuotaError` when ``charged_to`` has no job to spare
+    (nothing is queued then)."""
     if not MIN_RACERS <= len(entries) <= MAX_RACERS:
         raise ServiceError(f"a race has {MIN_RACERS} to {MAX_RACERS} cars, not {len(entries)}")
     race, settings = race_conditions(track_id=track_id, cars=len(entries), **conditions)
     direction = conditions.get("direction", "native")
     return _create(entries=entries, track_id=track_id, direction=direction, race=race,
-                   settings=settings, user=None, title=title, purpose="league", paced=paced,
+                   settings=settings, user=charged_to, title=title, purpose="league", paced=paced,
                    broadcast_group=broadcast_group, enqueue=True)  # fmt: skip
 
 
@@ -153,7 +159,8 @@ def race_start(
     that checked the facilitator's role and froze each entry's weights (``checkpoints``:
     model id → store key). ``tags``: model id → what the caller knows the entry as (a
     submission's id), kept in the entry. ``paced``: at real time, its frames also sent to
-    ``broadcast_group`` (a race day's broadcast page)."""
+    ``broadcast_group`` (a race day's broadcast page). A race queued for a worker counts
+    against ``user``'s job quota (:class:`~training.services.jobs.JobQuotaError`)."""
     owners = {model.owner_id for model in plan.models}
     mine = owners == {getattr(user, "pk", None)}
     if purpose != "league" and not mine and not getattr(user, "is_staff", False):
@@ -175,9 +182,12 @@ def race_start(
 def _create(*, entries: list[dict], track_id: str, direction: str, race: RaceConfig,
             settings: RaceSettings, user, title: str, purpose: str, paced: bool,
             broadcast_group: str, enqueue: bool) -> RaceJob:  # fmt: skip
+    owner = user if getattr(user, "pk", None) else None
     with transaction.atomic():
+        if owner is not None and enqueue:  # a race run here by the command line is not queued
+            job_quota_hold(user=owner)
         job = RaceJob.objects.create(
-            owner=user if getattr(user, "pk", None) else None, title=title[:120],
+            owner=owner, title=title[:120],
             purpose=purpose, entries=entries, track_id=track_id, direction=direction,
             laps=settings.laps, bots=race.number_of_bots if race.has_bots else 0,
             bot_speed=race.bot_speed if race.has_bots else RACE_DEFAULT_BOT_SPEED,
