@@ -111,9 +111,6 @@ def test_the_runner_keeps_the_best_so_far_unless_beaten(monkeypatch, best_score,
 
         env = None
 
-        def start(self, learner) -> None:
-            pass
-
         def gather(self, learner) -> Experience:
             learner.model.num_timesteps += 1
             return Experience(steps=1, episodes=[], rows=[], rollout_s=0.0)
@@ -121,15 +118,6 @@ def test_the_runner_keeps_the_best_so_far_unless_beaten(monkeypatch, best_score,
         def evaluate(self, learner, iteration: int) -> None:
             learner.evaluated(iteration, EvaluationOutcome([next(scores)], ["off_track"], [[]],
                                                            [0.0]), 0.0)  # fmt: skip
-
-        def after_update(self, learner) -> None:
-            pass
-
-        def poll(self, learner) -> bool:
-            return False
-
-        def reserved_cores(self) -> int:
-            return 0
 
         def finish(self, learner) -> None:
             pass

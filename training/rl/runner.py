@@ -33,7 +33,12 @@ from training.rl.hyperparams import Hyperparameters
 from training.rl.policies import LEAN
 from training.rollout.backends import LocalRollouts, RolloutBackend
 from training.rollout.envs import EnvSpec
-from training.rollout.experience import EvaluationOutcome, ExperienceRequest, ExperienceSource
+from training.rollout.experience import (
+    EvaluationOutcome,
+    Experience,
+    ExperienceRequest,
+    ExperienceSource,
+)
 
 log = logging.getLogger(__name__)
 
@@ -212,7 +217,6 @@ class TrainingLoop:
 
     def run(self) -> TrainingSummary:
         try:
-            self.source.start(self)
             self._threads(inference=True)  # the update sets its own and gives them back
             while not self.stop_reason():
                 experience = self.source.gather(self)
@@ -220,9 +224,8 @@ class TrainingLoop:
                     break  # an interrupted rollout is not learnt from
                 t1 = time.monotonic()
                 if experience.learned_s is None:
-                    self._update()
+                    self._update(experience)
                 update_s = time.monotonic() - t1 + (experience.learned_s or 0.0)
-                self.source.after_update(self)
                 if self.stop_reason():
                     break  # stopped during the update: the last finished iteration stands
                 self._iteration += 1
@@ -251,15 +254,16 @@ class TrainingLoop:
             elapsed_s=time.monotonic() - self.started,
         )
 
-    def _update(self) -> None:
-        """PPO's update. An evaluation may run beside it (lockstep): its outcome goes back
-        between two minibatches as soon as it ends, and a stop then ends the update. The
-        update leaves the source's reserved cores alone; its threads are the same for every
-        update of a run whatever the timing (1 and 2 threads round differently)."""
-        self._threads(inference=False, spare=self.source.reserved_cores())
+    def _update(self, experience: Experience) -> None:
+        """PPO's update of ``experience``. It leaves the cores the experience asks for to its
+        source and calls the experience's ``between_minibatches`` between two minibatches;
+        a stop ends the update there (it is then not kept)."""
+        self._threads(inference=False, spare=experience.spare_cores)
+        beside = experience.between_minibatches
 
         def between_minibatches() -> bool:
-            self.source.poll(self)
+            if beside is not None:
+                beside()
             return self.stop_reason() is not None
 
         hooked = hasattr(self.model, "between_minibatches")  # DeepRacerPPO's hook

@@ -2,10 +2,13 @@
 experience comes from, as stable-baselines3's ``learn()`` asks ``collect_rollouts``.
 
 An iteration: :meth:`ExperienceSource.gather` drives about ``episodes_per_update`` episodes
-with the current policy and leaves them where the algorithm learns from (PPO's rollout buffer;
-SAC learns as it drives); the loop updates the policy; :meth:`ExperienceSource.evaluate` has
-the new policy evaluated, and the source hands each finished evaluation back through
-:meth:`Learner.evaluated`, then or later. Two sources implement it:
+with the current policy and leaves them where the algorithm learns from (PPO's rollout buffer,
+filled by :func:`~training.rollout.buffers.fill_rollout_buffer`; SAC learns as it drives); the
+loop updates the policy, leaving the cores and calling back between minibatches as the
+:class:`Experience` says; :meth:`ExperienceSource.evaluate` has the new policy evaluated, and
+the source hands each finished evaluation back through :meth:`Learner.evaluated`, then or
+later. Whatever a source does beside the update (lockstep: the evaluation of the policy before)
+it keeps to itself. Two sources implement it:
 
 - :class:`~training.rollout.lockstep.LockstepExperience`: the trainer steps vectorised envs
   (sandboxed processes on this machine), then evaluates on an env of its own;
@@ -99,6 +102,13 @@ class Experience:
     """Seconds spent driving."""
     learned_s: float | None = None
     """Seconds of policy updates already made while driving (SAC); None: the loop updates."""
+    spare_cores: int = 0
+    """Cores of this machine that the update learning from it leaves to the source (which
+    drives on beside it), the same for every update of a run: 1 and 2 threads round
+    differently, so a run's arithmetic must not depend on timing."""
+    between_minibatches: Callable[[], object] | None = None
+    """Called between two minibatches of that update (lockstep: hands back the evaluation
+    driven beside it once it has ended)."""
 
 
 class Hooks(Protocol):
@@ -137,26 +147,14 @@ class ExperienceSource(Protocol):
     """The env the algorithm is built on: its observation and action spaces, and for a
     lockstep source the env it steps."""
 
-    def start(self, learner: Learner) -> None:
-        """Called once, with the model built, before the first :meth:`gather`."""
-
     def gather(self, learner: Learner) -> Experience | None:
-        """Experience of the current policy; None when a stop interrupted it (not learnt)."""
+        """Experience of the current policy; None when a stop interrupted it (not learnt).
+        The first call starts whatever the source runs (the model is built by then)."""
 
     def evaluate(self, learner: Learner, iteration: int) -> None:
-        """Have the policy as it is now (after ``iteration``'s update) evaluated."""
-
-    def poll(self, learner: Learner) -> bool:
-        """Between two minibatches of an update: hand back an evaluation that has ended
-        meanwhile, if any (True if one went back)."""
-
-    def after_update(self, learner: Learner) -> None:
-        """The update is over: hand back the evaluation that ran beside it, if any, waiting
-        for its end."""
-
-    def reserved_cores(self) -> int:
-        """Cores of this machine that the policy updates leave to the source, the same for
-        every update of a run."""
+        """Have the policy as it is now (after ``iteration``'s update) evaluated. A source may
+        first hand back an evaluation that ran beside the update; if that stops the loop,
+        ``iteration`` is not evaluated (nor kept), as if the stop came during the update."""
 
     def finish(self, learner: Learner) -> None:
         """The run ends: hand back the evaluations still outstanding, as far as they got."""

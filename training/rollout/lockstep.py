@@ -11,8 +11,9 @@ evaluation car its next action after each training step and takes the reply afte
 so the evaluation worker steps while the trainer chooses the training cars' actions and waits
 for their workers. What is left of it at the rollout's end runs beside the next update, on a
 thread of its own (with a frozen copy of the policy, where the trainer drives), on a core the
-update leaves it (:meth:`LockstepExperience.reserved_cores`); its outcome goes back between
-two of the update's minibatches once it ends. Nothing learnt
+update leaves it (:attr:`Experience.spare_cores`); its outcome goes back between two of the
+update's minibatches once it ends (:attr:`Experience.between_minibatches`), or when the next
+evaluation starts (:meth:`LockstepExperience.evaluate`). Nothing learnt
 changes: the same steps, updates and outcomes as evaluating first (tested), in less time.
 While an evaluation runs, its car is on the live view; the training cars' frames follow.
 
@@ -22,7 +23,7 @@ network (the policy's network can travel in NumPy, as for the evaluation) the wo
 training cars themselves: each draws its cars' actions from the policy's probabilities,
 :data:`SAMPLE_STEPS` steps a command, two commands under way, and the trainer computes the
 values and log-probabilities of the whole rollout in a few batches afterwards
-(:meth:`LockstepExperience._sample_rollout`, :func:`fill_rollout_buffer`: what SB3's
+(:meth:`LockstepExperience._sample_rollout`, :func:`fill_sampled_rollout`: what SB3's
 ``collect_rollouts`` would put in the buffer for the same actions, tested). No round trip and
 no forward pass of the trainer's per step: on 2 cores a step of the rollout costs about two
 thirds of what it did. Every other policy (camera + LIDAR, SAC, continuous actions), and
@@ -37,6 +38,7 @@ view going when someone watches.
 from __future__ import annotations
 
 import copy
+import functools
 import logging
 import math
 import select
@@ -48,6 +50,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
+from training.rollout.buffers import fill_rollout_buffer
 from training.rollout.envs import FRAME_INTERVAL_S
 from training.rollout.experience import (
     EvaluationOutcome,
@@ -207,13 +210,16 @@ class Evaluation:
                 outcome.ended_in_lap[i] = int(info.get("lap", 1))
 
 
-def fill_rollout_buffer(model, chunks: list[SampledSteps]) -> None:
+def fill_sampled_rollout(model, chunks: list[SampledSteps]) -> None:
     """``model``'s rollout buffer from a rollout its envs' side drove (``chunks`` in order, as
     many steps as the buffer holds): what SB3's ``collect_rollouts`` puts there, with the
-    policy's values and log-probabilities computed for all the steps at once. As SB3 does,
-    an episode that the time limit cut gets γ × the value of its last observation added to
-    its last reward, and the returns bootstrap from the value of the observations after the
-    rollout. ``model._last_obs`` and ``_last_episode_starts`` move on as there."""
+    policy's values and log-probabilities computed for all the steps at once, through
+    :func:`~training.rollout.buffers.fill_rollout_buffer`. As SB3 does, an episode that the
+    time limit cut gets γ × the value of its last observation added to its last reward, and
+    the returns bootstrap from the value of the observations after the rollout.
+    ``model._last_obs`` and ``_last_episode_starts`` move on as there.
+
+    :raises RuntimeError: the chunks do not hold the buffer's steps × envs."""
     buffer, policy = model.rollout_buffer, model.policy
     obs = np.concatenate([c.obs for c in chunks])
     actions = np.concatenate([c.actions for c in chunks])
@@ -254,15 +260,9 @@ def fill_rollout_buffer(model, chunks: list[SampledSteps]) -> None:
     starts = np.empty((steps, n), np.float32)
     starts[0] = model._last_episode_starts
     starts[1:] = dones[:-1]
-    buffer.reset()
-    buffer.observations[:] = flat.reshape(buffer.observations.shape)
-    buffer.actions[:] = actions.reshape(buffer.actions.shape)
-    buffer.rewards[:] = rewards
-    buffer.episode_starts[:] = starts
-    buffer.values[:] = values.reshape(steps, n)
-    buffer.log_probs[:] = log_probs.reshape(steps, n)
-    buffer.pos, buffer.full = steps, True
-    buffer.compute_returns_and_advantage(last_values=last_values, dones=dones[-1])
+    fill_rollout_buffer(buffer, observations=flat, actions=actions, rewards=rewards,
+                        episode_starts=starts, values=values, log_probs=log_probs,
+                        last_values=last_values, dones=dones[-1])  # fmt: skip
     model._last_obs = channels_first(chunks[-1].next_obs)
     model._last_episode_starts = dones[-1]
 
@@ -420,9 +420,6 @@ class LockstepExperience:
             learner.hooks.on_episode(entry)
 
     # ------------------------------------------------------------------ the protocol
-    def start(self, learner: Learner) -> None:
-        """Nothing runs ahead of the first rollout in lockstep."""
-
     def gather(self, learner: Learner) -> Experience | None:
         self._episodes, self._rows = [], []
         model = learner.model
@@ -440,6 +437,8 @@ class LockstepExperience:
             rows=self._rows,
             rollout_s=time.monotonic() - t0,
             learned_s=learned_s,
+            spare_cores=self._spare_cores(),
+            between_minibatches=functools.partial(self.take_evaluation, learner, wait=False),
         )
 
     def _collect_rollout(self, learner: Learner) -> bool:
@@ -509,7 +508,7 @@ class LockstepExperience:
         if stopped:
             return False
         self.rollout_ended(learner)  # the live view's laps go on while the values are computed
-        fill_rollout_buffer(model, chunks)
+        fill_sampled_rollout(model, chunks)
         return True
 
     def _send_chunk(self, learner: Learner, net: dict | None, left: int,
@@ -555,9 +554,12 @@ class LockstepExperience:
         rollout (its policy is the one that rollout drives with); whatever is left of it at
         the rollout's end is driven beside the next update, on the :class:`Spectator`'s
         thread, and its outcome goes back when it ends: between two of the update's
-        minibatches (:meth:`poll`) or after the update. SAC (whose policy changes as it
-        drives) and ``overlap_evaluation=False``: the whole evaluation, now. The one beside
-        the last update went back already (:meth:`after_update`)."""
+        minibatches (:attr:`Experience.between_minibatches`) or here, first, once it ends
+        (should that stop the loop, ``iteration`` is not evaluated: the loop ends without
+        keeping it, as when the stop comes during the update). SAC (whose policy changes as it
+        drives) and ``overlap_evaluation=False``: the whole evaluation, now."""
+        if self.take_evaluation(learner, wait=True) and learner.stop_reason():
+            return
         self.spectator.stop()
         self.evaluating = Evaluation(self.eval_venv, self.request, iteration,
                                      learner.model.policy)  # fmt: skip
@@ -575,15 +577,6 @@ class LockstepExperience:
             self._busy_s = evaluation.busy_s
         self.spectator.start(learner, learner.iteration + 1, evaluation)
 
-    def after_update(self, learner: Learner) -> None:
-        """The update is over: the evaluation beside it goes back, once it ends."""
-        self.take_evaluation(learner, wait=True)
-
-    def poll(self, learner: Learner) -> bool:
-        """Between an update's minibatches: hand back the evaluation beside it if it has ended
-        (True)."""
-        return self.take_evaluation(learner, wait=False)
-
     def take_evaluation(self, learner: Learner, *, wait: bool) -> bool:
         """Hand back the evaluation driven beside the update once it has ended (``wait``: wait
         for its end; its ``busy_s`` counts that wait). True if one went back."""
@@ -595,7 +588,7 @@ class LockstepExperience:
         self._evaluated(learner)
         return True
 
-    def reserved_cores(self) -> int:
+    def _spare_cores(self) -> int:
         """Cores PPO's updates leave to this source: one for an evaluation beside the update
         (its worker, and the trainer's thread that drives it). Every update of the run leaves
         it, whether or not an evaluation runs beside that one, so that a run's arithmetic

@@ -132,20 +132,17 @@ class StreamedExperience:
         self._episodes: list[tuple[float, float]] = []
         self._checked = 0.0
         self._hooks: Hooks | None = None
+        self._started = False
         self._relay_stop = threading.Event()
         self._relay = threading.Thread(target=self._relay_frames, name="frames", daemon=True)
 
     # ---------------------------------------------------------------- the protocol
-    def start(self, learner: Learner) -> None:
-        self._hooks = learner.hooks
-        self._publish(learner, 0)
-        for slot in self.slots:
-            self._launch(slot)
-        self._relay.start()
-
     def gather(self, learner: Learner) -> Experience | None:
         """The quota of episodes of the current version, in the order they finished, in the
-        model's rollout buffer; None if stopped."""
+        model's rollout buffer; None if stopped. The first call publishes version 0 and
+        starts the workers."""
+        if not self._started:
+            self._start(learner)
         version, quota = learner.iteration, self.request.episodes_per_update
         t0 = time.monotonic()
         self.counted, self._partial, self._rows, self._episodes = {}, {}, [], []
@@ -161,6 +158,8 @@ class StreamedExperience:
         model.rollout_buffer = rollout_buffer(model, list(self.counted.values()))
         steps = model.rollout_buffer.buffer_size
         model.num_timesteps += steps
+        # No cores left to the workers during the update: they drive on through it, as they
+        # would on machines of their own.
         return Experience(steps=steps, episodes=self._episodes, rows=self._rows,
                           rollout_s=time.monotonic() - t0)  # fmt: skip
 
@@ -175,20 +174,15 @@ class StreamedExperience:
         self.pending.append(_Pending(iteration, expected=self.request.eval_episodes))
         self._hand_back(learner)
 
-    def poll(self, learner: Learner) -> bool:
-        """Nothing to hand back during an update: evaluations come in while gathering."""
-        return False
-
-    def after_update(self, learner: Learner) -> None:
-        """Nothing ran beside the update here."""
-
-    def reserved_cores(self) -> int:
-        """None: the workers drive on through the update, as they would on machines of their
-        own."""
-        return 0
-
     def finish(self, learner: Learner) -> None:
         self._hand_back(learner, final=True)
+
+    def _start(self, learner: Learner) -> None:
+        self._started, self._hooks = True, learner.hooks
+        self._publish(learner, 0)
+        for slot in self.slots:
+            self._launch(slot)
+        self._relay.start()
 
     # ---------------------------------------------------------------- workers
     def _launch(self, slot: _Slot) -> None:

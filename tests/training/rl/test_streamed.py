@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import torch
 from gymnasium import spaces
-from stable_baselines3.common.buffers import RolloutBuffer
 
 from training.rl.checkpoints import load_checkpoint
 from training.rl.hyperparams import parse_hyperparameters
@@ -17,7 +16,7 @@ from training.rl.metadata import build_metadata
 from training.rl.runner import TrainingConfig, TrainingHooks, experience_request, train
 from training.rl.simulation import launch_local
 from training.rollout.backends import StreamRollouts
-from training.rollout.buffers import episode_advantages, rollout_buffer
+from training.rollout.buffers import rollout_buffer
 from training.rollout.envs import EnvSpec
 from training.rollout.lockstep import LockstepExperience
 from training.rollout.streamed import StreamedExperience, worker_count
@@ -29,28 +28,59 @@ def reward_function(params):
 """
 
 
-def test_advantages_are_sb3s_gae_for_a_terminated_and_a_truncated_episode():
+def reference_gae(rewards, values, *, terminated: bool, bootstrap: float, gamma: float,
+                  lam: float) -> np.ndarray:  # fmt: skip
+    """GAE(λ) of one whole episode, written out: a terminated episode's last step has no
+    future; one cut by the time limit bootstraps from the value of its last observation."""
+    n, last = len(rewards), 0.0
+    advantages = np.zeros(n)
+    for t in reversed(range(n)):
+        next_value = (0.0 if terminated else bootstrap) if t == n - 1 else values[t + 1]
+        delta = rewards[t] + gamma * next_value - values[t]
+        last = delta + (gamma * lam * last if t < n - 1 else 0.0)
+        advantages[t] = last
+    return advantages
+
+
+def test_streamed_episodes_fill_the_buffer_with_gae_per_episode_for_a_terminated_and_a_cut_one():
+    """The streamed buffer is filled as the lockstep one (one function, SB3's GAE): two
+    episodes in a row as one env, the first terminated, the second cut by the time limit (its
+    bootstrap added to its last reward), hold each episode's own GAE(λ); chunks of an episode
+    join up in order."""
+    from types import SimpleNamespace
+
+    from training.rollout.streams import Chunk
+
     rng = np.random.default_rng(3)
     gamma, lam = 0.99, 0.95
     lengths, terminated, bootstrap = [5, 4], [True, False], [0.0, 0.7]
     rewards = [rng.normal(size=n).astype(np.float32) for n in lengths]
     values = [rng.normal(size=n).astype(np.float32) for n in lengths]
-    ours = np.concatenate([
-        episode_advantages(r, v, terminated=t, bootstrap=b, gamma=gamma, lam=lam)
+    model = SimpleNamespace(observation_space=spaces.Box(0, 1, (1,)),
+                            action_space=spaces.Discrete(2), device="cpu", gamma=gamma,
+                            gae_lambda=lam)  # fmt: skip
+
+    def chunk(e: int, part: slice, seq: int, last: bool) -> Chunk:
+        n = len(rewards[e][part])
+        return Chunk(ticket=f"0:{e}", attempt=f"a{e}", worker="w0", version=0, seq=seq,
+                     obs=np.full((n, 1), e, np.float32), actions=np.zeros(n, np.int64),
+                     log_probs=np.full(n, -0.5, np.float32), values=values[e][part],
+                     rewards=rewards[e][part], infos=[{}] * n, last=last,
+                     terminated=terminated[e], bootstrap=bootstrap[e])  # fmt: skip
+
+    episodes = [[chunk(0, slice(0, 2), 0, False), chunk(0, slice(2, 5), 1, True)],
+                [chunk(1, slice(0, 4), 0, True)]]  # fmt: skip
+    buffer = rollout_buffer(model, episodes)
+    expected = np.concatenate([
+        reference_gae(r, v, terminated=t, bootstrap=b, gamma=gamma, lam=lam)
         for r, v, t, b in zip(rewards, values, terminated, bootstrap, strict=True)
     ])  # fmt: skip
-    # SB3: one env, the two episodes in a row, the truncated one's bootstrap added to its last
-    # reward (what OnPolicyAlgorithm.collect_rollouts does), every episode ending in a done.
-    n = sum(lengths)
-    buf = RolloutBuffer(n, spaces.Box(0, 1, (1,)), spaces.Discrete(2), gamma=gamma,
-                        gae_lambda=lam, n_envs=1)  # fmt: skip
-    r = np.concatenate(rewards)
-    r[n - 1] += gamma * bootstrap[1]
-    buf.rewards[:, 0] = r
-    buf.values[:, 0] = np.concatenate(values)
-    buf.episode_starts[[0, lengths[0]], 0] = 1.0
-    buf.compute_returns_and_advantage(torch.zeros(1), np.ones(1))
-    assert np.allclose(ours, buf.advantages[:, 0], atol=1e-5)
+    assert buffer.full and buffer.pos == buffer.buffer_size == sum(lengths)
+    assert np.allclose(buffer.advantages[:, 0], expected, atol=1e-5)
+    assert np.allclose(buffer.returns[:, 0], expected + np.concatenate(values), atol=1e-5)
+    assert buffer.episode_starts[:, 0].tolist() == [1, 0, 0, 0, 0, 1, 0, 0, 0]
+    assert buffer.observations[:, 0, 0].tolist() == [0] * 5 + [1] * 4
+    assert np.allclose(buffer.log_probs, -0.5)
 
 
 class Collect(TrainingHooks):

@@ -16,7 +16,7 @@ from training.rl.hyperparams import parse_hyperparameters
 from training.rl.policies import LEAN
 from training.rollout.envs import EnvSpec
 from training.rollout.greedy import export_greedy
-from training.rollout.lockstep import fill_rollout_buffer
+from training.rollout.lockstep import fill_sampled_rollout
 from training.rollout.numpy_policy import GreedyNet
 from training.rollout.vecenv import LocalVecEnv, SampledSteps, SandboxedVecEnv
 
@@ -78,7 +78,7 @@ def test_the_buffer_is_what_collect_rollouts_fills_for_the_same_actions(max_step
     assert any(cut) == (max_steps is not None)  # ... and one was cut: γ·V(last obs) added
     chunk = SampledSteps(np.stack(obs), actions, np.array(rewards), np.array(dones), infos,
                          current)  # fmt: skip
-    fill_rollout_buffer(model2, [chunk])
+    fill_sampled_rollout(model2, [chunk])
     ours = model2.rollout_buffer
     for key in ("observations", "actions", "episode_starts"):
         assert np.array_equal(getattr(ours, key), sb3[key]), key
