@@ -3,7 +3,7 @@
 Every variable has a default that runs the whole console on one machine with nothing else
 installed: SQLite under var/, an embedded Redis started by ``manage.py up``, objects in a
 local folder. Production points DATABASE_URL, REDIS_URL and MINIO_* at real services.
-See README.md for the table of variables.
+See docs/operator.md ("Configuration") for the table of variables.
 """
 
 from __future__ import annotations
