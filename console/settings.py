@@ -24,7 +24,6 @@ from django.core.exceptions import ImproperlyConfigured
 from console.env import envbool, envint, envlist, envstr
 from console.redisconf import cache_settings, celery_settings, channel_layers
 from training.bucket import DEFAULT_BUCKET, StoreError, check_bucket_name
-from training.storage.outbound import AllowList
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 # Runtime state (SQLite file, embedded Redis socket, local object store); git-ignored.
@@ -367,10 +366,14 @@ RATELIMIT_IP_META_KEY = "console.throttle.client_ip"
 # of a DeepRacer-for-Cloud install (minio.lan, 192.168.1.20, 10.0.0.0/24, localhost). Every
 # racer may then reach them: list only servers meant for that. Empty by default.
 RACECRAFT_OUTBOUND_ALLOW = envlist("RACECRAFT_OUTBOUND_ALLOW")
-try:  # the guarded client's own parser, so a setting that starts is one it reads
-    AllowList.parse(RACECRAFT_OUTBOUND_ALLOW)
-except ValueError as exc:
-    raise ImproperlyConfigured(f"RACECRAFT_OUTBOUND_ALLOW: {exc}") from None
+for _entry in RACECRAFT_OUTBOUND_ALLOW:
+    try:
+        ipaddress.ip_network(_entry.strip("[]"), strict=False)
+    except ValueError:
+        if not re.fullmatch(r"[A-Za-z0-9_]([A-Za-z0-9_.-]{0,252})", _entry):
+            raise ImproperlyConfigured(
+                f"RACECRAFT_OUTBOUND_ALLOW: {_entry!r} is not a host name, address or network"
+            ) from None
 
 LOGGING = {
     "version": 1,
