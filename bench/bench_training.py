@@ -47,6 +47,27 @@ machine): fast ≤ 120 s, defaults ≤ 60 s.
 These keys are the first mode's; each further mode adds its own, prefixed with its name
 (``streams_defaults_median_s=…``), and ``{mode}_ratio=`` = its fast median / the first mode's.
 
+``--suite`` (issue 50) runs the track suite instead: the racing preset on re:Invent 2018, Tokyo's
+training track, the 2022 May Open and Pro tracks (the closest to the 2022 Open and Pro tracks'
+median lengths) and the 2022 re:Invent championship (``--suite-tracks`` others), ``--seeds`` each,
+then DeepRacer's defaults where they finish: on each track their first seed is a probe, the other
+seeds run only where it reached the goal (``--defaults-minutes``, default ``--minutes``). Each
+track's lap limit is ``--lap-limit`` scaled by its length against re:Invent 2018's 17.71 m
+(length / 1.771 m/s, rounded to 0.1 s: 10.0 s there, 36.1 s on the 63.9 m Pro track); the output
+says so. A run capped by ``--minutes`` has not reached the goal: its seconds and steps when it
+stopped are lower bounds, printed ``>…``, and a median or slowest figure they leave unknown is
+``nan`` in the last line. Per track: seeds that reached the goal, steps and seconds to it (median,
+slowest), the best lap and the median qualifying lap. ``--json FILE`` writes the figures and every
+run; ``--baseline FILE`` reads such a file and adds each track's ratio of median seconds. Last
+line: ``suite_<track>_median_s= _worst_s= _steps= _worst_steps= _reached= _best_lap_s= _lap_s=
+_defaults_median_s=`` per track (the track id in lower case), with a baseline
+``suite_<track>_ratio=`` (``_ratio_at_most=`` where the baseline's median is a lower bound),
+``suite_median_ratio=`` and ``suite_worst_ratio=`` over the tracks with an exact ratio, and
+``suite_max_spread=``: the largest slowest / median seconds of any track.
+
+    .venv/bin/python bench/bench_training.py --suite [--minutes 6] [--defaults-minutes 3]
+        [--suite-tracks T ...] [--json FILE] [--baseline FILE]
+
 ``--device`` (default ``RACECRAFT_TORCH_DEVICE``, else ``cpu``) is where the trainer's networks
 train, as the console's setting of that name. The CPU is the reference, so the bench never picks
 a GPU by itself (TrainingConfig's own default, ``auto``, would); ``RACECRAFT_TORCH_DEVICE=cuda``
@@ -83,6 +104,7 @@ import os
 import platform
 import shutil
 import statistics
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -97,7 +119,13 @@ import torch  # noqa: E402
 
 from console.launcher import EmbeddedRedis, Supervisor  # noqa: E402
 from racing.actions import ActionSpaceError, ActionSpec  # noqa: E402
-from racing.tracks import DEEPRACER_DIR, is_builtin  # noqa: E402
+from racing.track import Track  # noqa: E402
+from racing.tracks import (  # noqa: E402
+    BUILTIN_DIR,
+    DEEPRACER_DIR,
+    deepracer_manifest,
+    is_builtin,
+)
 from training.rewards.examples import example_source  # noqa: E402
 from training.rl.algorithms import resolve_device  # noqa: E402
 from training.rl.hyperparams import (  # noqa: E402
@@ -157,6 +185,8 @@ class Run:
     """PPO epochs the updates ran up to the goal (or to the end), an epoch stopped early by
     ``target_kl`` counting; over ``updates`` (= ``iterations`` until the goal) updates."""
     updates: int = 0
+    track: str = ""
+    """The track it trained on (``--suite``; ``""``: ``--track``)."""
 
 
 def exit_point(progress: float, lap: int | None) -> tuple[int, float]:
@@ -457,15 +487,19 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
     return run
 
 
-def print_table(runs: list[Run]) -> None:
-    print(f"{'mode':<10}{'setup':<10}{'seed':>5}{'to goal':>10}{'steps':>8}{'iters':>7}"
+def print_table(runs: list[Run], *, tracks: bool = False) -> None:
+    """One line per run; ``tracks``: a first column names its track (``--suite``)."""
+    width = max((len(r.track) for r in runs), default=0) + 2 if tracks else 0
+    print(f"{'track' if width else '':<{width}}"
+          f"{'mode':<10}{'setup':<10}{'seed':>5}{'to goal':>10}{'steps':>8}{'iters':>7}"
           f"{'rollout':>9}{'update':>8}{'eval':>7}{'best lap':>10}"
           "  laps of the qualifying evaluations (s)")  # fmt: skip
     for r in runs:
         took = f"{r.seconds:.1f} s" if r.seconds is not None else f">{r.wall_s:.0f} s"
         steps = str(r.steps) if r.steps is not None else f">{r.total_steps}"
         laps = "; ".join(" ".join(f"{t:.2f}" for t in ev) for ev in r.qualifying_laps) or "-"
-        print(f"{r.mode:<10}{r.setup:<10}{r.seed:>5}{took:>10}{steps:>8}{r.iterations:>7}"
+        print(f"{r.track if width else '':<{width}}"
+              f"{r.mode:<10}{r.setup:<10}{r.seed:>5}{took:>10}{steps:>8}{r.iterations:>7}"
               f"{r.rollout_s:>8.1f}s{r.update_s:>7.1f}s{r.eval_s:>6.1f}s"
               f"{fmt(r.best_lap_s, 2):>10}  {laps}")  # fmt: skip
 
@@ -490,6 +524,358 @@ def print_exits(runs: list[Run]) -> None:
 def seeds_of(args: argparse.Namespace) -> range:
     """The seeds each setup runs: ``--first-seed`` K and on, ``--seeds`` of them."""
     return range(args.first_seed, args.first_seed + args.seeds)
+
+
+# ------------------------------------------------------------------------------ the track suite
+SUITE_TRACKS = (
+    "reinvent_base",
+    "Tokyo_Training_track",
+    "2022_may_open",
+    "2022_may_pro",
+    "2022_reinvent_champ",
+)
+"""``--suite``'s tracks: re:Invent 2018 (17.7 m, the bench's own), Tokyo's training track
+(22.6 m of tight bends, narrow), the 2022 league's May Open and Pro tracks (Ross Raceway 46.1 m,
+Ross Super Speedway 63.9 m: the 2022 Open tracks run 40.2-50.3 m, median 45.7; the Pro tracks
+57.9-76.8 m, median 63.0; May's are the closest to both medians, where March's Pro track is the
+longest of all) and the 2022 re:Invent championship (33.3 m, 0.95 m wide)."""
+REFERENCE_TRACK = "reinvent_base"
+"""The track whose lap limit (``--lap-limit``, 10.0 s) the others' scale from."""
+
+
+def track_length(track: str, tracks_dir: Path = SHARED) -> float:
+    """The centre line's length in metres: the built-in manifest's (measured by our simulator
+    on the file), else measured on ``tracks_dir``'s file."""
+    meta = deepracer_manifest().get(track)
+    if meta is not None:
+        return float(meta["length_m"])
+    found = BUILTIN_DIR / f"{track}.npy" if is_builtin(track) else tracks_dir / f"{track}.npy"
+    if not found.exists():
+        raise SystemExit(f"--suite-tracks: no track {track!r} (built in, or in --tracks-dir)")
+    return float(Track.from_file(str(found), name=track).length)
+
+
+def lap_limit_for(length_m: float, reference_length_m: float, reference_limit_s: float) -> float:
+    """A track's lap limit: its length at the reference track's average speed at its limit
+    (re:Invent 2018: 17.71 m in 10.0 s, 1.77 m/s, about half the racing preset's 3.5 m/s top
+    speed), rounded to 0.1 s. The reference track itself keeps its limit."""
+    return round(length_m * reference_limit_s / reference_length_m, 1)
+
+
+def lap_limit_formula(reference_length_m: float, reference_limit_s: float, top_speed: float) -> str:
+    speed = reference_length_m / reference_limit_s
+    return (
+        f"lap limit = length / {speed:.3f} m/s, rounded to 0.1 s: re:Invent 2018's "
+        f"{reference_limit_s:.1f} s for {reference_length_m:.2f} m (--lap-limit), an average of "
+        f"{speed / top_speed:.0%} of the racing preset's top speed ({top_speed:g} m/s)"
+    )
+
+
+@dataclass(frozen=True)
+class Bound:
+    """A figure over runs that may have missed their goal: ``exact``, or a lower bound
+    (``>value``: a missed run's goal lies beyond what it reached before its time limit);
+    ``value`` None where there are no runs."""
+
+    value: float | None
+    exact: bool = True
+
+    def text(self, digits: int = 1, thousands: bool = False) -> str:
+        if self.value is None:
+            return "nan"
+        shown = f"{self.value:,.{digits}f}" if thousands else f"{self.value:.{digits}f}"
+        return shown if self.exact else f">{shown}"
+
+    def key(self, digits: int = 1) -> str:
+        """For the last line: the value where exact, else ``nan``."""
+        return fmt(self.value if self.exact else None, digits)
+
+
+def censored_median(values: list[tuple[float, bool]]) -> Bound:
+    """The median of ``(value, reached)`` pairs, a missed run's value being a lower bound: exact
+    where the misses cannot move it (they sort above the middle whatever they turn out to be),
+    else the lower bound that the misses at their bounds give."""
+    if not values:
+        return Bound(None)
+    low = statistics.median(v for v, _ in values)
+    high = statistics.median(v if reached else float("inf") for v, reached in values)
+    return Bound(float(low), exact=low == high)
+
+
+def censored_max(values: list[tuple[float, bool]]) -> Bound:
+    """The largest value: exact where every run reached its goal, else a lower bound."""
+    if not values:
+        return Bound(None)
+    return Bound(float(max(v for v, _ in values)), exact=all(reached for _, reached in values))
+
+
+@dataclass(frozen=True)
+class TrackSummary:
+    """One setup's runs on one track: seconds and steps to the goal, with lower bounds where a
+    seed missed it (a missed run's seconds and steps when it stopped)."""
+
+    track: str
+    setup: str
+    runs: int
+    reached: int
+    median_s: Bound
+    worst_s: Bound
+    median_steps: Bound
+    worst_steps: Bound
+    best_lap_s: float | None
+    lap_s: float | None
+    """Median lap of the qualifying evaluations of every run that reached the goal."""
+
+
+def summarise_track(track: str, setup: str, runs: list[Run]) -> TrackSummary:
+    mine = [r for r in runs if r.track == track and r.setup == setup]
+    secs = [(r.seconds, True) if r.seconds is not None else (r.wall_s, False) for r in mine]
+    steps = [(float(r.steps), True) if r.steps is not None else (float(r.total_steps), False)
+             for r in mine]  # fmt: skip
+    laps = [t for r in mine for ev in r.qualifying_laps for t in ev]
+    bests = [r.best_lap_s for r in mine if r.best_lap_s is not None]
+    return TrackSummary(
+        track=track,
+        setup=setup,
+        runs=len(mine),
+        reached=sum(r.seconds is not None for r in mine),
+        median_s=censored_median(secs),
+        worst_s=censored_max(secs),
+        median_steps=censored_median(steps),
+        worst_steps=censored_max(steps),
+        best_lap_s=min(bests) if bests else None,
+        lap_s=float(statistics.median(laps)) if laps else None,
+    )
+
+
+def suite_ratio(now: Bound, before: Bound) -> Bound:
+    """This run's median over the baseline's: exact where both are; ``exact=False`` here means
+    an upper bound (the baseline's median is only a lower bound), None where nothing is known."""
+    if now.value is None or before.value is None or not now.exact or not before.value:
+        return Bound(None)
+    return Bound(now.value / before.value, exact=before.exact)
+
+
+def key_name(track: str) -> str:
+    return track.lower()
+
+
+def suite_key_values(tracks: list[str], fast: dict[str, TrackSummary],
+                     defaults: dict[str, TrackSummary],
+                     baseline: dict[str, dict] | None = None) -> str:  # fmt: skip
+    """The suite's last line: per track the racing preset's median and slowest seconds and
+    steps to the goal (``nan`` where a seed's miss leaves it unknown), seeds that reached it,
+    best and median qualifying lap, DeepRacer's defaults' median; with a baseline, each track's
+    ratio of medians (``_ratio``, or ``_ratio_at_most`` where the baseline's median is a lower
+    bound), ``suite_median_ratio`` and ``suite_worst_ratio`` over the tracks with an exact one;
+    ``suite_max_spread``: the largest slowest/median seconds of any track."""
+    out: list[str] = []
+    ratios: list[float] = []
+    spreads: list[float] = []
+    for track in tracks:
+        k, s = key_name(track), fast.get(track)
+        if s is not None:
+            out += [
+                f"suite_{k}_median_s={s.median_s.key()}",
+                f"suite_{k}_worst_s={s.worst_s.key()}",
+                f"suite_{k}_steps={s.median_steps.key(0)}",
+                f"suite_{k}_worst_steps={s.worst_steps.key(0)}",
+                f"suite_{k}_reached={s.reached}",
+                f"suite_{k}_best_lap_s={fmt(s.best_lap_s, 2)}",
+                f"suite_{k}_lap_s={fmt(s.lap_s, 2)}",
+            ]
+            if s.median_s.exact and s.worst_s.exact and s.median_s.value:
+                spreads.append(s.worst_s.value / s.median_s.value)  # type: ignore[operator]
+            if baseline is not None and track in baseline:
+                ratio = suite_ratio(s.median_s, bound_of(baseline[track]["median_s"]))
+                if ratio.value is not None and ratio.exact:
+                    ratios.append(ratio.value)
+                    out.append(f"suite_{k}_ratio={fmt(ratio.value, 2)}")
+                elif ratio.value is not None:
+                    out.append(f"suite_{k}_ratio_at_most={fmt(ratio.value, 2)}")
+                else:
+                    out.append(f"suite_{k}_ratio=nan")
+        d = defaults.get(track)
+        if d is not None:
+            out.append(f"suite_{k}_defaults_median_s={d.median_s.key()}")
+    if baseline is not None:
+        out.append(f"suite_median_ratio={fmt(statistics.median(ratios) if ratios else None, 2)}")
+        out.append(f"suite_worst_ratio={fmt(max(ratios) if ratios else None, 2)}")
+    out.append(f"suite_max_spread={fmt(max(spreads) if spreads else None, 2)}")
+    return " ".join(out)
+
+
+def bound_of(data: dict) -> Bound:
+    return Bound(data.get("value"), bool(data.get("exact", True)))
+
+
+def read_baseline(path: Path) -> dict[str, dict]:
+    """``--baseline FILE``: a previous ``--suite --json FILE``'s racing preset per track."""
+    try:
+        data = json.loads(path.read_text())
+        return {t: v["fast"] for t, v in data["tracks"].items() if v.get("fast")}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as error:
+        raise SystemExit(f"--baseline {path}: not a --suite --json file ({error})") from None
+
+
+def print_suite_tables(tracks: list[str], info: dict[str, tuple[float, float]],
+                       summaries: dict[tuple[str, str], TrackSummary],
+                       baseline: dict[str, dict] | None) -> None:  # fmt: skip
+    """Per track and setup: seeds that reached the goal, steps and seconds to it (median and
+    slowest, ``>`` a lower bound where a seed missed it), the best lap and the median lap of
+    the qualifying evaluations; with a baseline, the ratio of median seconds."""
+    head = (f"{'track':<22}{'length':>8}{'limit':>7}  {'setup':<9}{'reached':>8}"
+            f"{'steps median':>14}{'slowest':>10}{'s median':>10}{'slowest':>9}"
+            f"{'best lap':>10}{'qual lap':>10}")  # fmt: skip
+    print(head + ("  vs baseline" if baseline is not None else ""))
+    for track in tracks:
+        length, limit = info[track]
+        for setup in ("fast", "defaults"):
+            s = summaries.get((track, setup))
+            if s is None:
+                continue
+            shown_limit = f"{limit:.1f}s" if setup == "fast" else "any"
+            line = (f"{track:<22}{length:>7.2f}m{shown_limit:>7}  {setup:<9}"
+                    f"{f'{s.reached}/{s.runs}':>8}{s.median_steps.text(0, True):>14}"
+                    f"{s.worst_steps.text(0, True):>10}{s.median_s.text():>10}"
+                    f"{s.worst_s.text():>9}{fmt(s.best_lap_s, 2):>10}"
+                    f"{fmt(s.lap_s, 2):>10}")  # fmt: skip
+            if baseline is not None and setup == "fast" and track in baseline:
+                before = bound_of(baseline[track]["median_s"])
+                ratio = suite_ratio(s.median_s, before)
+                line += f"  {before.text()} s before, ratio " + (
+                    "nan"
+                    if ratio.value is None
+                    else f"{ratio.value:.2f}"
+                    if ratio.exact
+                    else f"<={ratio.value:.2f}"
+                )
+            print(line)
+
+
+def run_suite(args: argparse.Namespace, scratch: Path, mode: str, redis_url: str,
+              info: dict[str, tuple[float, float]]) -> list[Run]:  # fmt: skip
+    """The racing preset's seeds on every track first, then DeepRacer's defaults where they
+    finish: on each track its first seed is a probe, and only where the probe reaches the goal
+    within ``--minutes`` do the other seeds run."""
+    runs: list[Run] = []
+    fast = racing_setup(args)
+
+    def one(setup: Setup, track: str, seed: int, minutes: float) -> Run:
+        print(f"{mode}: {setup.name} ({setup.preset.label}) seed {seed} on {track}"
+              + (f", lap limit {setup.lap_limit_s:.1f} s" if setup.lap_limit_s else ""),
+              flush=True)  # fmt: skip
+        on_track = argparse.Namespace(**{**vars(args), "track": track, "minutes": minutes})
+        run = run_one(setup, seed, on_track, scratch, mode=mode, redis_url=redis_url)
+        run.track = track
+        if run.seconds is None:
+            print(f"    not reached within {minutes:g} min ({run.total_steps} steps)",
+                  flush=True)  # fmt: skip
+        return run
+
+    if "fast" in args.setups:
+        for track in args.suite_tracks:
+            setup = dataclasses.replace(fast, lap_limit_s=info[track][1])
+            for seed in seeds_of(args):
+                runs.append(one(setup, track, seed, args.minutes))
+    if "defaults" in args.setups:
+        defaults = Setup("defaults", DEEPRACER_DEFAULTS, None)
+        for track in args.suite_tracks:
+            seeds = list(seeds_of(args))
+            probe = one(defaults, track, seeds[0], args.defaults_minutes)
+            runs.append(probe)
+            if probe.seconds is None:
+                print(f"defaults on {track}: the probe seed {seeds[0]} missed the goal within "
+                      f"{args.defaults_minutes:g} min; its other seeds skipped",
+                      flush=True)  # fmt: skip
+                continue
+            for seed in seeds[1:]:
+                runs.append(one(defaults, track, seed, args.defaults_minutes))
+    return runs
+
+
+def suite_main(args: argparse.Namespace, device: torch.device, modes: list[str]) -> None:
+    """``--suite``: the racing preset and DeepRacer's defaults on :data:`SUITE_TRACKS` (or
+    ``--suite-tracks``), each track's lap limit scaled from re:Invent 2018's ``--lap-limit``."""
+    mode = modes[0]
+    baseline = read_baseline(args.baseline) if args.baseline else None
+    reference = track_length(REFERENCE_TRACK)
+    top_speed = max(float(a["speed"]) for a in racing_setup(args).preset.actions())
+    info = {}
+    for track in args.suite_tracks:
+        length = track_length(track, args.tracks_dir)
+        info[track] = (length, lap_limit_for(length, reference, args.lap_limit))
+    before = machine()
+    print(f"machine: {before}", flush=True)
+    print(f"trainer device: {device_label(device)}", flush=True)
+    library = Path(sys.modules[TrainingLoop.__module__].__file__ or "").parents[2]
+    print(f"code measured: {library}", flush=True)
+    print(f"suite: {mode}, seeds {', '.join(map(str, seeds_of(args)))} on every track, each "
+          f"run capped at {args.minutes:g} min (DeepRacer's defaults at "
+          f"{args.defaults_minutes:g} min): a capped run has not reached the goal, printed as "
+          ">its seconds and steps; DeepRacer's defaults after the racing preset on every track, "
+          "where their first seed (a probe) reaches the goal", flush=True)  # fmt: skip
+    print(lap_limit_formula(reference, args.lap_limit, top_speed), flush=True)
+    for track in args.suite_tracks:
+        print(f"  {track}: {info[track][0]:.2f} m, lap limit {info[track][1]:.1f} s", flush=True)
+    with tempfile.TemporaryDirectory() as tmp, Supervisor() as sup:
+        redis_url = args.redis_url
+        if mode == "streams" and not redis_url:
+            redis = EmbeddedRedis(Path(tmp) / "redis.sock", persist=False)
+            sup.start(redis.spec())
+            sup.wait_until(redis.ping, what="embedded Redis", timeout=30)
+            redis_url = redis.url
+        runs = run_suite(args, Path(tmp), mode, redis_url, info)
+    print()
+    print_table(runs, tracks=True)
+    for track in args.suite_tracks:
+        if any(r.exits for r in runs if r.track == track):
+            print(f"\n{track}:")
+            print_exits([r for r in runs if r.track == track])
+    summaries = {
+        (track, setup): summarise_track(track, setup, runs)
+        for track in args.suite_tracks
+        for setup in ("fast", "defaults")
+        if any(r.track == track and r.setup == setup for r in runs)
+    }
+    print()
+    print_suite_tables(args.suite_tracks, info, summaries, baseline)
+    after = machine()
+    print(f"machine after: {after}")
+    if args.json:
+        write_suite_json(args, info, summaries, runs, before, after, device)
+    fast = {t: s for (t, setup), s in summaries.items() if setup == "fast"}
+    defaults = {t: s for (t, setup), s in summaries.items() if setup == "defaults"}
+    print(suite_key_values(args.suite_tracks, fast, defaults, baseline))
+
+
+def write_suite_json(args: argparse.Namespace, info: dict[str, tuple[float, float]],
+                     summaries: dict[tuple[str, str], TrackSummary], runs: list[Run],
+                     before: str, after: str, device: torch.device) -> None:  # fmt: skip
+    """``--json FILE``: what ``--baseline FILE`` reads back, and every run."""
+    data = {
+        "command": " ".join(sys.argv),
+        "machine": before,
+        "machine_after": after,
+        "device": device_label(device),
+        "minutes": args.minutes,
+        "seeds": list(seeds_of(args)),
+        "tracks": {
+            track: {
+                "length_m": info[track][0],
+                "lap_limit_s": info[track][1],
+                **{
+                    setup: asdict(summaries[track, setup])
+                    for setup in ("fast", "defaults")
+                    if (track, setup) in summaries
+                },
+            }
+            for track in args.suite_tracks
+        },
+        "runs": [asdict(r) for r in runs],
+    }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(data, indent=1))
 
 
 def main() -> None:
@@ -536,6 +922,28 @@ def main() -> None:
     parser.add_argument("--actions", default="",
                         help="an experiment: train the racing preset with this action space "
                              "(a JSON list of {steering_angle, speed})")  # fmt: skip
+    parser.add_argument("--suite", action="store_true",
+                        help="the track suite: the racing preset, then DeepRacer's defaults where "
+                             "they finish, on re:Invent 2018, Tokyo, 2022 May Open and Pro and "
+                             "the 2022 re:Invent championship, each with a lap limit scaled "
+                             "from --lap-limit by its length")  # fmt: skip
+    parser.add_argument("--suite-tracks", nargs="+", default=list(SUITE_TRACKS), metavar="TRACK",
+                        help="--suite: these tracks instead")  # fmt: skip
+    parser.add_argument(
+        "--defaults-minutes",
+        type=float,
+        default=None,
+        help="--suite: DeepRacer's defaults' time limit (default --minutes)",
+    )
+    parser.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help="--suite: write the figures and every run to this file",
+    )
+    parser.add_argument("--baseline", type=Path, default=None,
+                        help="--suite: a previous --json file; adds each track's ratio of "
+                             "median seconds to it")  # fmt: skip
     args = parser.parse_args()
     args.overrides = parse_overrides(args.set)
     args.network = checked_network(args.network)
@@ -543,6 +951,10 @@ def main() -> None:
     device = resolve_device(args.device)  # a GPU asked for that this machine lacks fails here
     setups = [Setup("defaults", DEEPRACER_DEFAULTS, None), racing_setup(args)]
     modes = list(dict.fromkeys(args.modes))
+    if args.suite:
+        if args.defaults_minutes is None:
+            args.defaults_minutes = args.minutes
+        return suite_main(args, device, modes)
     print(f"machine: {machine()}", flush=True)
     print(f"trainer device: {device_label(device)}", flush=True)
     if args.network:

@@ -22,7 +22,11 @@ per update and per minibatch, then torch's profile of one update by operation: t
 the console's way on the lean network (marked "now") and on the compact one, on ``--device``.
 Last line: ``update_s=`` (the console's way on the racing preset's network)
 ``lean_update_s=`` (on the lean network) ``baseline_update_s=`` ``ratio=`` (update_s /
-baseline).
+baseline), then what the update would gain on both cores while the simulators idle (issue 50):
+``both_cores_update_s=`` (the compact network's update on as many torch threads as this
+machine has cores, against ``--threads`` for the others), ``both_cores_ratio=`` (that /
+update_s) and ``both_cores_same=`` (1 if its weights after an update from the same start and
+data are bit for bit those on ``--threads`` threads; 0: a seed would take another path).
 
     .venv/bin/python bench/bench_update.py [--steps 2000] [--repeats 5] [--threads 2]
         [--device cpu|cuda] [--no-profile]
@@ -115,6 +119,32 @@ def profile(model, steps: int, rng: np.random.Generator, rows: int) -> str:
     return prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=rows)
 
 
+def both_cores(device: str, steps: int, repeats: int, threads: int, cores: int) -> tuple:
+    """The compact network's update on ``cores`` threads: its median seconds (over
+    ``repeats``, interleaved with ``threads`` threads), and whether one update from the same
+    weights and data gives the same weights bit for bit on both counts."""
+    network, way = RACING.network, console_way(device)
+
+    def updated(count: int, seed: int) -> tuple[float, list[torch.Tensor]]:
+        torch.set_num_threads(count)
+        torch.manual_seed(seed)
+        model = make_model(way, device, network)
+        seconds = timed_update(model, steps, np.random.default_rng(seed))
+        return seconds, [p.detach().clone() for p in model.policy.parameters()]
+
+    try:
+        updated(cores, 0)  # warm-up of the thread pool
+        times, same = [], True
+        for seed in range(repeats):
+            _, one = updated(threads, seed)
+            seconds, both = updated(cores, seed)
+            times.append(seconds)
+            same = same and all(torch.equal(a, b) for a, b in zip(one, both, strict=True))
+    finally:
+        torch.set_num_threads(threads)
+    return statistics.median(times), same
+
+
 def console_way(device: str) -> str:
     """The way a console job updates on ``device``: channels-last on a CPU only."""
     return "channels_last" if torch.device(device).type in CHANNELS_LAST_DEVICES else "fused"
@@ -157,6 +187,12 @@ def main() -> None:
     for way in ways:
         print(f"| {labels[way]} | {median[way]:.2f} | {median[way] / minibatches * 1000:.1f} | "
               f"{median[way] / median['baseline']:.2f} |")  # fmt: skip
+    cores = os.cpu_count() or 1
+    both_s, same = both_cores(args.device, args.steps, args.repeats, args.threads, cores)
+    weights = "bit for bit the same" if same else "not the same (another path per seed)"
+    print(f"\nthe compact network's update on {cores} threads (all cores) against "
+          f"{args.threads}: {both_s:.2f} against {median['compact']:.2f} s, "
+          f"weights {weights}")  # fmt: skip
     print(f"\nload average after: {os.getloadavg()[0]:.1f}")
     if not args.no_profile:
         for way in ("baseline", now, "compact"):
@@ -164,7 +200,10 @@ def main() -> None:
             print(profile(models[way], args.steps, rng, 14))
     print(f"update_s={median['compact']:.3f} lean_update_s={median[now]:.3f} "
           f"baseline_update_s={median['baseline']:.3f} "
-          f"ratio={median['compact'] / median['baseline']:.2f}")  # fmt: skip
+          f"ratio={median['compact'] / median['baseline']:.2f} "
+          f"both_cores_update_s={both_s:.3f} "
+          f"both_cores_ratio={both_s / median['compact']:.2f} "
+          f"both_cores_same={int(same)}")  # fmt: skip
 
 
 if __name__ == "__main__":

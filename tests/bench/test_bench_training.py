@@ -166,3 +166,152 @@ def test_where_failed_evaluations_left_the_track(bench, capsys) -> None:
     )
     assert "10-20%: 2" in out and "40-50%: 1" in out and "90-100%: 1" in out
     assert "defaults" not in out  # no failed evaluation, no line
+
+
+# ------------------------------------------------------------------------------ --suite
+def test_each_suite_track_gets_a_lap_limit_scaled_from_reinvent_2018s_by_its_length(bench) -> None:
+    lengths = {t: bench.track_length(t) for t in bench.SUITE_TRACKS}
+    assert lengths["reinvent_base"] == pytest.approx(17.71)
+    assert all(17 < length < 77 for length in lengths.values())
+    assert [t for t, length in lengths.items() if length >= 40] == ["2022_may_open", "2022_may_pro"]
+    ref = lengths["reinvent_base"]
+    limits = {t: bench.lap_limit_for(length, ref, 10.0) for t, length in lengths.items()}
+    assert limits == {
+        "reinvent_base": 10.0,  # the reference keeps --lap-limit
+        "Tokyo_Training_track": 12.8,
+        "2022_may_open": 26.0,
+        "2022_may_pro": 36.1,
+        "2022_reinvent_champ": 18.8,
+    }
+    assert bench.lap_limit_for(ref, ref, 8.0) == 8.0  # --lap-limit scales them all
+    formula = bench.lap_limit_formula(ref, 10.0, 3.5)
+    assert formula.startswith("lap limit = length / 1.771 m/s, rounded to 0.1 s")
+    assert "10.0 s for 17.71 m" in formula and "51% of the racing preset's top speed" in formula
+    with pytest.raises(SystemExit, match="--suite-tracks: no track 'nope'"):
+        bench.track_length("nope")
+
+
+def test_a_missed_seed_is_a_lower_bound_that_leaves_the_median_exact_only_above_it(bench) -> None:
+    m = bench.censored_median
+    assert m([(100.0, True), (140.0, True), (360.0, False)]) == bench.Bound(140.0)
+    assert m([(100.0, True), (360.0, False), (360.0, False)]) == bench.Bound(360.0, exact=False)
+    # 40,000 steps when capped, below a seed that reached at 50,000: the median is unknown
+    assert m([(30_000.0, True), (50_000.0, True), (40_000.0, False)]).exact is False
+    assert m([]) == bench.Bound(None)
+    assert bench.censored_max([(1.0, True), (2.0, True)]) == bench.Bound(2.0)
+    assert bench.censored_max([(1.0, True), (2.0, False)]) == bench.Bound(2.0, exact=False)
+    assert bench.Bound(12345.0, exact=False).text(0, thousands=True) == ">12,345"
+    assert bench.Bound(360.0, exact=False).key() == "nan" and bench.Bound(9.25).key() == "9.2"
+
+
+def suite_runs(bench):
+    def r(track, setup, seed, seconds, steps, total, wall=0.0, best=None, laps=()):
+        return bench.Run(setup, seed, seconds=seconds, steps=steps, total_steps=total,
+                         wall_s=wall, best_lap_s=best, track=track,
+                         qualifying_laps=[list(ev) for ev in laps])  # fmt: skip
+
+    return [
+        r("reinvent_base", "fast", 0, 60.0, 12_000, 12_000, best=5.4, laps=[[6.0] * 3] * 3),
+        r("reinvent_base", "fast", 1, 50.0, 10_000, 10_000, best=5.6, laps=[[5.8] * 3] * 3),
+        r("reinvent_base", "fast", 2, 100.0, 21_000, 21_000, best=5.5, laps=[[6.2] * 3] * 3),
+        r("2022_may_pro", "fast", 0, None, None, 80_000, wall=361.0, best=30.0),
+        r("2022_may_pro", "fast", 1, 300.0, 70_000, 70_000, best=29.0, laps=[[33.0] * 3] * 3),
+        r("2022_may_pro", "fast", 2, None, None, 75_000, wall=362.0),
+        r("reinvent_base", "defaults", 0, 20.0, 5_000, 5_000),
+    ]
+
+
+def test_the_suites_figures_per_track_and_its_last_line_against_a_baseline(bench) -> None:
+    runs = suite_runs(bench)
+    s = bench.summarise_track("reinvent_base", "fast", runs)
+    assert (s.runs, s.reached, s.median_s, s.worst_s) == (
+        3,
+        3,
+        bench.Bound(60.0),
+        bench.Bound(100.0),
+    )
+    assert (s.median_steps, s.worst_steps) == (bench.Bound(12_000.0), bench.Bound(21_000.0))
+    assert (s.best_lap_s, s.lap_s) == (5.4, 6.0)
+    pro = bench.summarise_track("2022_may_pro", "fast", runs)
+    assert pro.reached == 1 and pro.median_s == bench.Bound(361.0, exact=False)
+    assert pro.median_steps == bench.Bound(75_000.0, exact=False) and pro.lap_s == 33.0
+    defaults = {"reinvent_base": bench.summarise_track("reinvent_base", "defaults", runs)}
+    fast = {"reinvent_base": s, "2022_may_pro": pro}
+    tracks = ["reinvent_base", "2022_may_pro"]
+    line = bench.suite_key_values(tracks, fast, defaults)
+    assert line.startswith(
+        "suite_reinvent_base_median_s=60.0 suite_reinvent_base_worst_s=100.0 "
+        "suite_reinvent_base_steps=12000 suite_reinvent_base_worst_steps=21000 "
+        "suite_reinvent_base_reached=3 suite_reinvent_base_best_lap_s=5.40 "
+        "suite_reinvent_base_lap_s=6.00 suite_reinvent_base_defaults_median_s=20.0 "
+        "suite_2022_may_pro_median_s=nan "
+    )
+    assert "suite_2022_may_pro_reached=1 " in line
+    assert line.endswith("suite_max_spread=1.67")  # 100 s against 60 s; the Pro track unknown
+    baseline = {"reinvent_base": {"median_s": {"value": 120.0, "exact": True}},
+                "2022_may_pro": {"median_s": {"value": 360.5, "exact": False}}}  # fmt: skip
+    pro_now = bench.TrackSummary("2022_may_pro", "fast", 3, 3, bench.Bound(180.0),
+                                 bench.Bound(200.0), bench.Bound(40_000.0),
+                                 bench.Bound(45_000.0), 25.0, 28.0)  # fmt: skip
+    line = bench.suite_key_values(tracks, {**fast, "2022_may_pro": pro_now}, {}, baseline)
+    assert "suite_reinvent_base_ratio=0.50 " in line
+    assert "suite_2022_may_pro_ratio_at_most=0.50 " in line  # the baseline's median: >360.5 s
+    assert line.endswith("suite_median_ratio=0.50 suite_worst_ratio=0.50 suite_max_spread=1.67")
+
+
+def test_suite_runs_the_racing_preset_first_then_the_defaults_where_their_probe_finishes(
+    bench, monkeypatch, capsys, tmp_path
+) -> None:
+    import argparse
+
+    import torch
+
+    trained = []
+
+    def run_one(setup, seed, args, scratch, *, mode, redis_url):
+        trained.append((setup.name, args.track, seed, setup.lap_limit_s, args.minutes))
+        done = setup.name == "fast" or args.track == "reinvent_base"
+        laps = [[setup.lap_limit_s or 30.0] * 3] * 3 if done else []
+        return bench.Run(setup.name, seed, seconds=10.0 + seed if done else None,
+                         steps=1000 * (seed + 1) if done else None, total_steps=1000 * (seed + 1),
+                         wall_s=60.0 * args.minutes, qualifying_laps=laps)  # fmt: skip
+
+    monkeypatch.setattr(bench, "run_one", run_one)
+    monkeypatch.setattr("sys.argv", ["bench_training.py", "--suite"])
+    out_json = tmp_path / "suite.json"
+    args = argparse.Namespace(
+        suite_tracks=["reinvent_base", "Tokyo_Training_track"], setups=["defaults", "fast"],
+        seeds=2, first_seed=0, minutes=6.0, defaults_minutes=3.0, lap_limit=10.0, actions=None,
+        tracks_dir=bench.SHARED, redis_url="", json=out_json, baseline=None,
+    )  # fmt: skip
+    bench.suite_main(args, torch.device("cpu"), ["lockstep"])
+    assert trained == [
+        ("fast", "reinvent_base", 0, 10.0, 6.0),
+        ("fast", "reinvent_base", 1, 10.0, 6.0),
+        ("fast", "Tokyo_Training_track", 0, 12.8, 6.0),
+        ("fast", "Tokyo_Training_track", 1, 12.8, 6.0),
+        ("defaults", "reinvent_base", 0, None, 3.0),
+        ("defaults", "reinvent_base", 1, None, 3.0),
+        ("defaults", "Tokyo_Training_track", 0, None, 3.0),  # the probe misses: no seed 1
+    ]
+    out = capsys.readouterr().out
+    assert (
+        "lap limit = length / 1.771 m/s" in out
+        and "Tokyo_Training_track: 22.63 m, lap limit 12.8 s" in out
+    )
+    assert "defaults on Tokyo_Training_track: the probe seed 0 missed the goal within 3 min" in out
+    assert "Tokyo_Training_track    22.63m  12.8s  fast          2/2         1,500     2,000" in out
+    assert (
+        "Tokyo_Training_track    22.63m    any  defaults      0/1        >1,000    >1,000    >180.0"
+        in out
+    )
+    last = out.strip().splitlines()[-1]
+    assert last.startswith("suite_reinvent_base_median_s=10.5 ") and "=nan" in last
+
+    args.baseline, args.json = out_json, None  # the same figures again: every ratio 1
+    bench.suite_main(args, torch.device("cpu"), ["lockstep"])
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "suite_tokyo_training_track_ratio=1.00 " in last and "suite_median_ratio=1.00 " in last
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(SystemExit, match="--baseline .*bad.json: not a --suite --json file"):
+        bench.read_baseline(tmp_path / "bad.json")

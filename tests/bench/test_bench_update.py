@@ -27,7 +27,9 @@ def test_every_way_updates_and_the_last_line_has_the_ratio(monkeypatch, capsys) 
     ]  # fmt: skip
     last = out.strip().splitlines()[-1]
     assert re.fullmatch(
-        r"update_s=[\d.]+ lean_update_s=[\d.]+ baseline_update_s=[\d.]+ ratio=[\d.]+", last
+        r"update_s=[\d.]+ lean_update_s=[\d.]+ baseline_update_s=[\d.]+ ratio=[\d.]+ "
+        r"both_cores_update_s=[\d.]+ both_cores_ratio=[\d.]+ both_cores_same=[01]",
+        last,
     )
 
 

@@ -74,6 +74,11 @@ class ExperienceRequest:
     seed: int = 0
     reward_source: str | None = None
     reward_function: RewardCallable | None = field(default=None, compare=False)
+    lagged_rollout: bool = False
+    """An experiment (off by default: it changes what the learner sees for a seed): where the
+    workers draw the training cars' actions (lockstep PPO, camera networks), each rollout
+    after the first is driven beside the update before it, with the policy of the rollout
+    before (one update behind; its own values and log-probabilities go in the buffer)."""
 
     @property
     def on_policy(self) -> bool:
@@ -108,7 +113,8 @@ class Experience:
     differently, so a run's arithmetic must not depend on timing."""
     between_minibatches: Callable[[], object] | None = None
     """Called between two minibatches of that update (lockstep: hands back the evaluation
-    driven beside it once it has ended)."""
+    driven beside it once it has ended; with ``lagged_rollout``, takes in the chunks of the
+    next rollout, driven beside it)."""
 
 
 class Hooks(Protocol):

@@ -31,6 +31,13 @@ thirds of what it did. Every other policy (camera + LIDAR, SAC, continuous actio
 iteration is exactly what SB3's ``learn`` does. SAC learns as it drives (an update after every
 step): it drives on in chunks of SB3's ``learn`` until that many more episodes have finished.
 
+``lagged_rollout`` (an experiment, off: :attr:`ExperienceRequest.lagged_rollout`): where the
+workers draw the actions, the next rollout starts as the update starts, with the policy that
+drove the rollout just learnt from, and its chunks come in between the update's minibatches
+(:meth:`LockstepExperience._beside_update`): the simulators drive on the core the update
+leaves. The buffer then holds that policy's values and log-probabilities, one update behind
+the policy that learns from it; a seed takes other steps than without it.
+
 While the policy updates, and while an iteration is stored, a :class:`Spectator` keeps the live
 view going when someone watches.
 """
@@ -38,6 +45,7 @@ view going when someone watches.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import logging
 import math
@@ -88,6 +96,21 @@ def plan_rollout_steps(episodes: int, mean_episode_steps: float, num_envs: int) 
     """Steps per env so that about ``episodes`` episodes finish before the next update."""
     steps = math.ceil(episodes * max(mean_episode_steps, 1.0) / num_envs)
     return int(min(MAX_ROLLOUT_STEPS, max(MIN_ROLLOUT_STEPS, steps)))
+
+
+@dataclasses.dataclass
+class _Run:
+    """A rollout that the workers drive (:meth:`LockstepExperience._sample_rollout`):
+    ``n_steps`` a car with ``policy`` (whose values and log-probabilities go in the buffer),
+    ``net`` and ``seed`` going with its first chunk; chunks sent, under way, and come in."""
+
+    n_steps: int
+    policy: object
+    net: dict | None
+    seed: int | None
+    sent: int = 0
+    in_flight: list[int] = dataclasses.field(default_factory=list)
+    received: list[SampledSteps] = dataclasses.field(default_factory=list)
 
 
 class _StepWatcher(BaseCallback):
@@ -210,17 +233,19 @@ class Evaluation:
                 outcome.ended_in_lap[i] = int(info.get("lap", 1))
 
 
-def fill_sampled_rollout(model, chunks: list[SampledSteps]) -> None:
+def fill_sampled_rollout(model, chunks: list[SampledSteps], policy=None) -> None:
     """``model``'s rollout buffer from a rollout its envs' side drove (``chunks`` in order, as
     many steps as the buffer holds): what SB3's ``collect_rollouts`` puts there, with the
-    policy's values and log-probabilities computed for all the steps at once, through
+    values and log-probabilities of ``policy`` (the one that drove it: ``model.policy`` by
+    default) computed for all the steps at once, through
     :func:`~training.rollout.buffers.fill_rollout_buffer`. As SB3 does, an episode that the
     time limit cut gets γ × the value of its last observation added to its last reward, and
     the returns bootstrap from the value of the observations after the rollout.
     ``model._last_obs`` and ``_last_episode_starts`` move on as there.
 
     :raises RuntimeError: the chunks do not hold the buffer's steps × envs."""
-    buffer, policy = model.rollout_buffer, model.policy
+    buffer = model.rollout_buffer
+    policy = model.policy if policy is None else policy
     obs = np.concatenate([c.obs for c in chunks])
     actions = np.concatenate([c.actions for c in chunks])
     rewards = np.concatenate([c.rewards for c in chunks]).astype(np.float32)
@@ -399,6 +424,8 @@ class LockstepExperience:
         (:meth:`_sample_rollout`); False, or any other policy: SB3's ``collect_rollouts``,
         the trainer choosing every step's actions."""
         self._sampling_seeded = False
+        self._ahead: _Run | None = None
+        """``request.lagged_rollout``: the next rollout, under way beside the update."""
 
     # ------------------------------------------------------------------ step bookkeeping
     def collect(self, info: dict, learner: Learner) -> None:
@@ -438,91 +465,134 @@ class LockstepExperience:
             rollout_s=time.monotonic() - t0,
             learned_s=learned_s,
             spare_cores=self._spare_cores(),
-            between_minibatches=functools.partial(self.take_evaluation, learner, wait=False),
+            between_minibatches=functools.partial(self._beside_update, learner),
         )
 
     def _collect_rollout(self, learner: Learner) -> bool:
-        """PPO: one rollout into the model's buffer, as SB3's ``learn`` collects it."""
+        """PPO: one rollout into the model's buffer, as SB3's ``learn`` collects it (with
+        ``lagged_rollout``, mostly driven already, beside the update before)."""
         model = learner.model
-        recent = self.episode_steps[-50:]
-        guess = max(INITIAL_EPISODE_STEPS, float(self.longest_seen))
-        mean_len = float(np.mean(recent)) if recent else guess
-        n_steps = plan_rollout_steps(self.request.episodes_per_update, mean_len, model.n_envs)
+        ahead, self._ahead = self._ahead, None
+        n_steps = ahead.n_steps if ahead is not None else self._planned_steps(model.n_envs)
         model.set_rollout_steps(n_steps)
         total, callback = model._setup_learn(
             n_steps * model.n_envs, _StepWatcher(self, learner), reset_num_timesteps=False
         )
         callback.on_training_start(locals(), globals())
         net = export_greedy(model.policy) if self.sample_in_workers else None
-        if net is not None:
-            complete = self._sample_rollout(learner, net, n_steps)
+        if net is not None or ahead is not None:
+            run = ahead or _Run(n_steps, model.policy, net, self._first_seed())
+            complete = self._sample_rollout(learner, run)
         else:
             complete = model.collect_rollouts(model.env, callback, model.rollout_buffer,
                                               n_rollout_steps=n_steps)  # fmt: skip
         callback.on_training_end()
         if complete:
             model._update_current_progress_remaining(model.num_timesteps, total)
-        return bool(complete) and not learner.stop_reason()
+        complete = bool(complete) and not learner.stop_reason()
+        if complete and net is not None and self.request.lagged_rollout:
+            self._ahead = self._drive_ahead(learner, net)
+        return complete
 
-    def _sample_rollout(self, learner: Learner, net: dict, n_steps: int) -> bool:
+    def _planned_steps(self, n_envs: int) -> int:
+        """Steps per env of the next rollout, from the episodes seen so far."""
+        recent = self.episode_steps[-50:]
+        guess = max(INITIAL_EPISODE_STEPS, float(self.longest_seen))
+        mean_len = float(np.mean(recent)) if recent else guess
+        return plan_rollout_steps(self.request.episodes_per_update, mean_len, n_envs)
+
+    def _first_seed(self) -> int | None:
+        """The seed of the workers' draws for the run's first chunk; None after it."""
+        if self._sampling_seeded:
+            return None
+        self._sampling_seeded = True
+        seed = self.request.seed
+        return int(np.random.default_rng().integers(2**31)) if seed is None else seed
+
+    def _sample_rollout(self, learner: Learner, run: _Run) -> bool:
         """PPO with a camera network: the workers drive the rollout, drawing each car's action
-        from ``net`` (the policy's network in NumPy) :data:`SAMPLE_STEPS` steps a command,
+        from ``run.net`` (the policy's network in NumPy) :data:`SAMPLE_STEPS` steps a command,
         while the trainer books the chunk before (infos, episodes, the live view) and keeps
-        the evaluation going; then the policy's values and log-probabilities for the whole
+        the evaluation going; then ``run.policy``'s values and log-probabilities for the whole
         rollout in a few batches, into the buffer as SB3's ``collect_rollouts`` fills it.
-        False: stopped (not learnt from)."""
+        A rollout driven ahead (``lagged_rollout``) brings the chunks that came in during the
+        update, booked first. False: stopped (not learnt from)."""
         model, venv = learner.model, self.venv
         model.policy.set_training_mode(False)
         self.spectator.stop()
-        seed = None
-        if not self._sampling_seeded:  # the run's first chunk seeds the workers' draws
-            seed = self.request.seed
-            if seed is None:
-                seed = int(np.random.default_rng().integers(2**31))
-            self._sampling_seeded = True
         chunks: list[SampledSteps] = []
-        sent = 0
-        in_flight: list[int] = []
         stopped = False
+        for part in run.received:
+            self._book(learner, part)
+            chunks.append(part)
         while True:
             # Two chunks under way: each worker drives the next while the trainer takes up
             # this one (and while the other worker ends its own), never waiting for a command.
-            while len(in_flight) < SAMPLES_AHEAD and sent < n_steps and not stopped:
-                in_flight.append(self._send_chunk(learner, net if sent == 0 else None,
-                                                  n_steps - sent,
-                                                  seed if sent == 0 else None))  # fmt: skip
-                sent += in_flight[-1]
-            if not in_flight:
+            while len(run.in_flight) < SAMPLES_AHEAD and run.sent < run.n_steps and not stopped:
+                self._send_chunk(learner, run)
+            if not run.in_flight:
                 break
             self._wait_for_workers(learner)
             part = venv.receive_sample()
-            in_flight.pop(0)
-            for infos, dones in zip(part.infos, part.dones, strict=True):
-                for info in infos:
-                    self.collect(info, learner)
-                model.num_timesteps += venv.num_envs
-                model._update_info_buffer(infos, dones)
+            run.in_flight.pop(0)
+            self._book(learner, part)
             chunks.append(part)
             self.advance_evaluation(learner)
             stopped = stopped or bool(learner.stop_reason())  # the chunks under way come back
         if stopped:
             return False
         self.rollout_ended(learner)  # the live view's laps go on while the values are computed
-        fill_sampled_rollout(model, chunks)
+        fill_sampled_rollout(model, chunks, run.policy)
         return True
 
-    def _send_chunk(self, learner: Learner, net: dict | None, left: int,
-                    seed: int | None = None) -> int:  # fmt: skip
-        """The next chunk of at most ``left`` steps goes out; its steps. While the live view
-        shows a training car, chunks are short, so that its frames come as they are driven
-        (a frame every 1/15 s; two long chunks taken up back to back would bring four at
-        once, and the view keeps only the newest two)."""
+    def _book(self, learner: Learner, part: SampledSteps) -> None:
+        """A chunk's infos, episodes and frames, and its steps counted, as SB3 counts them."""
+        model = learner.model
+        for infos, dones in zip(part.infos, part.dones, strict=True):
+            for info in infos:
+                self.collect(info, learner)
+            model.num_timesteps += self.venv.num_envs
+            model._update_info_buffer(infos, dones)
+
+    def _send_chunk(self, learner: Learner, run: _Run, *, beside_update: bool = False) -> None:
+        """``run``'s next chunk goes out (the network and the seed with its first). While the
+        live view shows a training car, chunks are short, so that its frames come as they are
+        driven (a frame every 1/15 s; two long chunks taken up back to back would bring four
+        at once, and the view keeps only the newest two). Beside the update the live view
+        shows the evaluation or the spare lap: no frames."""
         # The live view shows the evaluation beside the rollout while there is one.
-        frames = learner.hooks.frames_wanted() and self.evaluating is None
-        steps = min(WATCHED_CHUNK_STEPS if frames else SAMPLE_STEPS, left)
+        frames = (not beside_update and learner.hooks.frames_wanted()
+                  and self.evaluating is None)  # fmt: skip
+        steps = min(WATCHED_CHUNK_STEPS if frames else SAMPLE_STEPS, run.n_steps - run.sent)
         self.venv.want_frames = frames
-        self.venv.send_sample(net, steps, seed)
-        return steps
+        self.venv.send_sample(run.net, steps, run.seed)
+        run.net = run.seed = None  # the workers keep them
+        run.sent += steps
+        run.in_flight.append(steps)
+
+    def _drive_ahead(self, learner: Learner, net: dict) -> _Run:
+        """``lagged_rollout``: the next rollout starts now, with the policy that drove this one
+        (``net``), so that the workers drive it while the trainer updates; its chunks come in
+        between the update's minibatches (:meth:`_beside_update`)."""
+        model = learner.model
+        run = _Run(self._planned_steps(model.n_envs), frozen_copy(model.policy), net, None)
+        while len(run.in_flight) < SAMPLES_AHEAD and run.sent < run.n_steps:
+            self._send_chunk(learner, run, beside_update=True)
+        return run
+
+    def _beside_update(self, learner: Learner) -> None:
+        """Between two of the update's minibatches: the evaluation beside it, once it has
+        ended, goes back; the chunks of a rollout driven ahead that are in come in and the
+        next go out."""
+        self.take_evaluation(learner, wait=False)
+        run = self._ahead
+        if run is None:
+            return
+        while run.in_flight and self.venv.sample_ready():
+            run.received.append(self.venv.receive_sample())
+            run.in_flight.pop(0)
+        while len(run.in_flight) < SAMPLES_AHEAD and run.sent < run.n_steps:
+            self._send_chunk(learner, run, beside_update=True)
 
     def _wait_for_workers(self, learner: Learner) -> None:
         """Until the training workers' chunk is there: take up the evaluation's steps whenever
@@ -629,9 +699,13 @@ class LockstepExperience:
     def finish(self, learner: Learner) -> None:
         """The last evaluation, if the loop stopped before the rollout or the update it ran
         beside ended: to its end (a few seconds at most), since its iteration was learnt and
-        is kept."""
+        is kept; the chunks of a rollout driven ahead that are under way come back (the
+        workers then close at once)."""
         self.take_evaluation(learner, wait=True)
         self.finish_evaluation(learner, until_stop=False)
+        ahead, self._ahead = self._ahead, None
+        for _ in ahead.in_flight if ahead is not None else ():
+            self.venv.receive_sample()  # a rollout driven ahead that nobody learns from
 
     def close(self) -> None:
         self.spectator.stop(abort=True)
