@@ -1,14 +1,18 @@
-"""A live race day as its spectators get it: a 2-car head-to-bot race with 6 bots, broadcast at
-real time to 100 websocket viewers of a public event, all on this machine.
+"""A live race day as its spectators get it: a 2-car (``--cars`` 1-4) head-to-bot race with 6
+bots, broadcast at real time to 100 (``--viewers``) websocket viewers of a public event, all on
+this machine.
 
-    .venv/bin/python bench/bench_race.py [--spectators 100] [--seconds 30] [--seeds 1]
+    .venv/bin/python bench/bench_race.py [--cars 2] [--viewers 100] [--seconds 30] [--seeds 1]
                                          [--track racecraft_oval] [--penalty-s 0]
                                          [--no-video] [--redis-url URL]
+
+The issue's goal: ``--cars 4 --viewers 500``.
 
 The cars are what a user gets with the console's defaults: untrained PPO models on the
 network :func:`training.services.models.model_create` picks by default, DeepRacer's default
 discrete action space (:data:`racing.actions.DEFAULT_DISCRETE`); car 1 has the front camera,
-car 2 stereo cameras and LIDAR (DeepRacer's guidance for head-to-head racing). 6 bots drive at
+car 2 stereo cameras and LIDAR (DeepRacer's guidance for head-to-head racing), cars 3 and 4
+(``--cars 4``) the front camera and stereo cameras. 6 bots drive at
 0.75 m/s. Torch runs one thread, as in the worker. The penalties are 0 s by default: untrained
 cars leave the track every few seconds, and with DeepRacer's 5 s (``--penalty-s 5``) they
 would sit out most of the race, neither simulated nor asking their policy; at 0 s both drive
@@ -21,14 +25,21 @@ Each seed races twice in this process, for ``--seconds`` of race clock each (sto
   as they go (``steps/s``);
 - **live**: as a race day's evaluation worker runs it (:func:`training.worker.race.run_race_job`):
   :class:`training.worker.racelive.RaceBroadcast` paced at real time (15 frames/s), each
-  1280x720 frame JPEG-encoded once and sent once to the event's broadcast group, the MP4
+  1280x720 frame (the TV camera following the director's car, the track map and one
+  picture-in-picture per car: :class:`racing.broadcast.BroadcastView`) JPEG-encoded once and
+  sent once to the event's broadcast group, the MP4 (its timing burnt in)
   recorded (``--no-video``: not), while ``--spectators`` websocket clients (one child process,
   asyncio, raw RFC 6455: they time each frame message and read its race clock, nothing else)
   watch ``/ws/league/events/<id>/broadcast/`` as anonymous visitors of a public event, through
-  a real daphne serving ``console.asgi`` and a Channels layer on Redis (an embedded Redis
+  a real daphne started as ``manage.py up`` starts it (its listen queue and handshake timeout:
+  :func:`console.launcher.daphne_server_args`) serving ``console.asgi`` and a Channels layer on
+  Redis (an embedded Redis
   unless ``--redis-url``; every key under a random prefix, deleted at the end). The database
   is a fresh SQLite file in a temporary folder (the event and its organiser; nothing else
-  touches it during the race). After the race the viewers listen on until the frames stop.
+  touches it during the race). They arrive 10 every 50 ms; a viewer whose connection fails
+  tries again as the page does (after 1 s, then 2 s, 4 s: ``static/leaderboard/broadcast.js``),
+  :data:`CONNECT_TRIES` times in all. After the race the viewers listen on until the frames
+  stop.
 
 The window of a live race starts 1 s after its first frame (the first second is left out) and
 ends when the race returns. Per viewer: frames received in the window, frames/s over it, the
@@ -47,7 +58,8 @@ however many watch), ``sim_steps_per_s=`` the unpaced race's steps per second of
 ``realtime=`` race_fps / 15, ``ratio=`` the live race's CPU per step over the unpaced one's,
 both measured in this run (what broadcasting, the MP4 and pacing cost the worker),
 ``delay_s=`` the median viewer's median delay behind the race, ``frames_per_viewer=`` (in the
-window) and ``spectators=`` connected/asked. Steps and frames do not depend on the machine;
+window), ``spectators=`` connected/asked and ``retried=`` how many of them connected only after
+a failed try. Steps and frames do not depend on the machine;
 wall times, frames/s, gaps and delays do. The machine may be shared: say so when you quote the
 figures.
 """
@@ -81,8 +93,11 @@ QUIET_S, MAX_DRAIN_S = 1.0, 60.0
 """After the race the viewers listen on until no frame came for QUIET_S (frames in flight or
 queued), MAX_DRAIN_S at most."""
 CONNECT_TIMEOUT_S = 90.0
+CONNECT_TRIES = 4
+"""A viewer's tries to connect, 1 s, 2 s and 4 s apart (as the broadcast page retries)."""
 START_TIMEOUT_S = 90.0
-CARS = (("FRONT_FACING_CAMERA",), ("STEREO_CAMERAS", "LIDAR"))
+CARS = (("FRONT_FACING_CAMERA",), ("STEREO_CAMERAS", "LIDAR"), ("FRONT_FACING_CAMERA",),
+        ("STEREO_CAMERAS",))  # fmt: skip
 BOTS, BOT_SPEED_MPS = 6, 0.75
 READY = "READY"
 
@@ -138,6 +153,8 @@ class Live:
     """Wall seconds from the first frame the race showed to its last."""
     cpu_s: dict[str, float] = field(default_factory=dict)
     """CPU seconds during the race per process, and ``machine`` (every process, both cores)."""
+    retried: int = 0
+    """Viewers that connected only after a failed try."""
 
     @property
     def paced_fps(self) -> float:
@@ -219,13 +236,15 @@ def last_line(pairs: list[tuple[Race, Race]], spectators: int) -> str:
     ratio = median([live.cpu_ms_per_step / base.cpu_ms_per_step
                     for base, live in pairs if base.cpu_ms_per_step])  # fmt: skip
     connected = min((r.connected for r in lives), default=0)
+    retried = max((r.retried for r in lives), default=0)
     frames = median([statistics.median(v.frames for v in r.viewers) for r in lives if r.viewers])
     delay = median([r.delay_s for r in lives])
     return (f"race_fps={fps:.2f} paced_fps={paced:.2f} max_gap_s={gap:.2f} "
             f"encodes_per_frame={encodes:.3f} sim_steps_per_s={sim:.1f} "
             f"realtime={fps / REALTIME_FPS:.3f} ratio={ratio:.2f} "
             f"delay_s={delay:.2f} frames_per_viewer={frames:.0f} "
-            f"spectators={connected}/{spectators} seeds={len(pairs)}")  # fmt: skip
+            f"spectators={connected}/{spectators} retried={retried} "
+            f"seeds={len(pairs)}")  # fmt: skip
 
 
 # --------------------------------------------------------------------------- the viewers
@@ -237,21 +256,20 @@ def mask(payload: bytes) -> bytes:
 
 def race_clock(payload: bytes) -> float | None:
     """The ``timing.clock_s`` of a frame message (its JSON header), or None."""
-    try:  # training.worker.racelive.frame_payload: 4-byte length, JSON header, JPEG
-        (length,) = struct.unpack("!I", payload[:4])
-        return float(json.loads(payload[4 : 4 + length])["timing"]["clock_s"])
-    except (ValueError, KeyError, TypeError, struct.error):
+    from racing.framecodec import decode_header  # the one frame format
+
+    try:
+        return float(decode_header(payload)[0]["timing"]["clock_s"])
+    except (ValueError, KeyError, TypeError):
         return None
 
 
-async def view(url: str, times: list[tuple[float, float | None]], opened: asyncio.Future) -> None:
-    """One anonymous viewer: the handshake (with the Origin a browser sends), then the arrival
-    time and race clock of every complete frame message; pongs for daphne's pings. Sets
-    ``opened`` (True, or the exception) once the handshake ended."""
+async def handshake(url: str) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+    """A websocket connection to ``url`` (with the Origin a browser sends), once accepted."""
     parts = urlsplit(url)
     host, port = parts.hostname or "127.0.0.1", parts.port or 80
+    reader, writer = await asyncio.open_connection(host, port, limit=1 << 20)
     try:
-        reader, writer = await asyncio.open_connection(host, port, limit=1 << 20)
         key = base64.b64encode(os.urandom(16)).decode()
         writer.write(f"GET {parts.path} HTTP/1.1\r\nHost: {host}:{port}\r\n"
                      "Upgrade: websocket\r\nConnection: Upgrade\r\n"
@@ -260,10 +278,27 @@ async def view(url: str, times: list[tuple[float, float | None]], opened: asynci
         head = await reader.readuntil(b"\r\n\r\n")
         if b" 101 " not in head.split(b"\r\n", 1)[0]:
             raise ConnectionError(head.split(b"\r\n", 1)[0].decode(errors="replace"))
-    except (OSError, asyncio.IncompleteReadError, ConnectionError) as exc:
-        opened.set_result(exc)
-        return
-    opened.set_result(True)
+    except BaseException:
+        writer.close()
+        raise
+    return reader, writer
+
+
+async def view(url: str, times: list[tuple[float, float | None]], opened: asyncio.Future) -> None:
+    """One anonymous viewer: the handshake (tried :data:`CONNECT_TRIES` times, 1 s, 2 s, 4 s
+    apart, as the page does), then the arrival time and race clock of every complete frame
+    message; pongs for daphne's pings. Sets ``opened`` once the handshake ended: the number of
+    failed tries before it worked, or the last try's exception."""
+    for tries in range(CONNECT_TRIES):
+        try:
+            reader, writer = await handshake(url)
+            break
+        except (OSError, asyncio.IncompleteReadError, ConnectionError) as exc:
+            if tries == CONNECT_TRIES - 1:
+                opened.set_result(exc)
+                return
+            await asyncio.sleep(2.0**tries)
+    opened.set_result(tries)
     message = b""  # the binary message being received (its fragments so far)
     try:
         while True:
@@ -292,9 +327,10 @@ async def view(url: str, times: list[tuple[float, float | None]], opened: asynci
 
 
 async def spectate(url: str, count: int, out: Path) -> None:
-    """``count`` viewers of ``url``; prints ``READY <connected> <failed> <first error>`` once
-    every handshake ended, listens until SIGTERM and then until the frames stop (no frame for
-    :data:`QUIET_S`), then writes the connected viewers' frames to ``out`` as JSON."""
+    """``count`` viewers of ``url``; prints ``READY <connected> <failed> <retried> <first
+    error>`` once every handshake ended (``retried``: connected after a failed try), listens
+    until SIGTERM and then until the frames stop (no frame for :data:`QUIET_S`), then writes
+    the connected viewers' frames to ``out`` as JSON."""
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     loop.add_signal_handler(signal.SIGTERM, stop.set)
@@ -307,9 +343,11 @@ async def spectate(url: str, count: int, out: Path) -> None:
             await asyncio.sleep(0.05)
     done, _ = await asyncio.wait(opened, timeout=CONNECT_TIMEOUT_S)
     results = [f.result() if f in done else TimeoutError("no handshake") for f in opened]
-    ok = [r is True for r in results]
-    errors = [repr(r) for r in results if r is not True]
-    print(f"{READY} {sum(ok)} {count - sum(ok)} {errors[0] if errors else ''}", flush=True)
+    ok = [isinstance(r, int) for r in results]
+    retried = sum(isinstance(r, int) and r > 0 for r in results)
+    errors = [repr(r) for r in results if not isinstance(r, int)]
+    print(f"{READY} {sum(ok)} {count - sum(ok)} {retried} {errors[0] if errors else ''}",
+          flush=True)  # fmt: skip
     await stop.wait()
     stopped = time.monotonic()
     while time.monotonic() - stopped < MAX_DRAIN_S:
@@ -335,9 +373,9 @@ class CountedPolicy:
         return self.policy(obs)
 
 
-def race_entries(seed: int) -> list:
-    """The two cars, with the console's default network and action space (their policies
-    counted: :class:`CountedPolicy`)."""
+def race_entries(seed: int, cars: int = 2) -> list:
+    """The first ``cars`` of :data:`CARS`, with the console's default network and action
+    space (their policies counted: :class:`CountedPolicy`)."""
     import inspect
 
     import torch
@@ -353,7 +391,7 @@ def race_entries(seed: int) -> list:
     network = inspect.signature(model_create).parameters["neural_network"].default
     actions = [dict(a) for a in DEFAULT_DISCRETE]
     entries = []
-    for index, sensors in enumerate(CARS):
+    for index, sensors in enumerate(CARS[:cars]):
         torch.manual_seed(seed * 10 + index)  # the untrained weights, per seed
         metadata = build_metadata(action_space=actions, sensor=list(sensors),
                                   neural_network=network)  # fmt: skip
@@ -393,9 +431,9 @@ class FrameClock:
         self.on_frame = on_frame
         self.shown: list[tuple[float, float]] = []
 
-    def __call__(self, rgb, race) -> None:
-        self.on_frame(rgb, race)
-        self.shown.append((round(race.clock_s, 2), time.monotonic()))
+    def __call__(self, rgb, header: dict) -> None:
+        self.on_frame(rgb, header)
+        self.shown.append((header["timing"]["clock_s"], time.monotonic()))
 
 
 def race_once(seed: int, args: argparse.Namespace, *, broadcast=None
@@ -419,7 +457,7 @@ def race_once(seed: int, args: argparse.Namespace, *, broadcast=None
         off_track_penalty_s=args.penalty_s,
         crash_penalty_s=args.penalty_s,
     )
-    entries = race_entries(seed)
+    entries = race_entries(seed, args.cars)
     on_frame = FrameClock(broadcast.frame) if broadcast is not None else None
     cpu, wall = time.process_time(), time.monotonic()
     limit = StepLimit(steps)
@@ -504,12 +542,14 @@ def run_live(seed: int, args: argparse.Namespace, url: str, group: str, pids: di
         cwd=ROOT, env=env, stdout=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
-        ready = viewers.stdout.readline().split(maxsplit=3) if viewers.stdout else []
+        ready = viewers.stdout.readline().split(maxsplit=4) if viewers.stdout else []
         if not ready or ready[0] != READY:
             raise SystemExit(f"the viewers did not start ({viewers.poll()})")
         if int(ready[1]) == 0:
-            raise SystemExit(f"no viewer could connect: {' '.join(ready[3:])}")
-        print(f"seed {seed}: {ready[1]}/{args.spectators} viewers connected", flush=True)
+            raise SystemExit(f"no viewer could connect: {' '.join(ready[4:])}")
+        failed = f"; {ready[2]} failed: {ready[4]}" if int(ready[2]) else ""
+        print(f"seed {seed}: {ready[1]}/{args.spectators} viewers connected ({ready[3]} after "
+              f"a failed try{failed})", flush=True)  # fmt: skip
         everyone = {**pids, "viewers": viewers.pid, "machine": None}
         before = {name: proc_cpu_s(pid) for name, pid in everyone.items()}
         broadcast = RaceBroadcast([group], paced=True)
@@ -529,6 +569,7 @@ def run_live(seed: int, args: argparse.Namespace, url: str, group: str, pids: di
     sent = sum(p.sent for p in broadcast.publishers)
     race.live = live_result(arrivals, clock.shown, end, wanted=args.spectators, sent=sent,
                             encodes=broadcast.encodes)  # fmt: skip
+    race.live.retried = int(ready[3])
     if broadcast.frames != race.live.frames:
         raise SystemExit(f"{broadcast.frames} frames paced but {race.live.frames} shown")
     race.live.cpu_s = {"race": race.cpu_s, **cpu}
@@ -542,7 +583,7 @@ def run_all(args: argparse.Namespace, var: Path, redis_url: str, env: dict[str, 
     import django
     from bench_load import free_port, wait_http  # the console's start, as the load bench does
 
-    from console.launcher import ChildSpec, EmbeddedRedis, Supervisor
+    from console.launcher import ChildSpec, EmbeddedRedis, Supervisor, daphne_server_args
 
     pairs = []
     with Supervisor(stop_timeout=30) as sup:
@@ -564,8 +605,8 @@ def run_all(args: argparse.Namespace, var: Path, redis_url: str, env: dict[str, 
         set_torch_threads(1)  # as the race worker: one observation per car and step
         event_id = public_event(args.track)
         port = free_port()
-        argv = [sys.executable, "-m", "daphne", "-b", "127.0.0.1", "-p", str(port), "-v", "0",
-                "console.asgi:application"]  # fmt: skip
+        argv = [sys.executable, "-m", "daphne", *daphne_server_args("127.0.0.1", port), "-v",
+                "0", "console.asgi:application"]  # fmt: skip
         daphne = sup.start(ChildSpec("daphne", argv, env=env))
         pids["daphne"] = daphne.process.pid
         try:
@@ -592,7 +633,8 @@ def run_all(args: argparse.Namespace, var: Path, redis_url: str, env: dict[str, 
 # ------------------------------------------------------------------------------ the report
 def report(pairs: list[tuple[Race, Race]], args: argparse.Namespace) -> None:
     video = "with the MP4" if args.video else "no MP4"
-    print(f"\n2 cars ({', '.join(' + '.join(c) for c in CARS)}), {BOTS} bots at "
+    cars = ", ".join(" + ".join(c) for c in CARS[: args.cars])
+    print(f"\n{args.cars} cars ({cars}), {BOTS} bots at "
           f"{BOT_SPEED_MPS} m/s on {args.track}, {args.seconds:g} s of race clock, penalties "
           f"{args.penalty_s:g} s; live: paced at {REALTIME_FPS:.0f} fps, {video}, "
           f"{args.spectators} websocket viewers")  # fmt: skip
@@ -639,7 +681,8 @@ def report(pairs: list[tuple[Race, Race]], args: argparse.Namespace) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--spectators", type=int, default=100)
+    parser.add_argument("--spectators", "--viewers", dest="spectators", type=int, default=100)
+    parser.add_argument("--cars", type=int, default=2, choices=range(1, len(CARS) + 1))
     parser.add_argument("--seconds", type=float, default=30.0, help="race clock per race")
     parser.add_argument("--seeds", type=int, default=1)
     parser.add_argument("--track", default="racecraft_oval")

@@ -10,7 +10,16 @@ server's answer well inside the client's timeout.
 from __future__ import annotations
 
 from channels_redis.core import RedisChannelLayer
+from channels_redis.utils import create_pool
+
+MAX_CONNECTIONS = 1000
+"""Redis connections a web process's layer may hold at once. redis-py 8's pool refuses the
+101st concurrent command (``MaxConnectionsError``) rather than wait: 500 broadcast viewers
+arriving at once (each joining its group) hit that in ``bench/bench_race.py --viewers 500``."""
 
 
 class RacecraftChannelLayer(RedisChannelLayer):
     brpop_timeout = 2
+
+    def create_pool(self, index):
+        return create_pool({"max_connections": MAX_CONNECTIONS, **self.hosts[index]})

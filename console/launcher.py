@@ -40,6 +40,7 @@ from console.celery import (
     QUEUE_DEFAULT,
     QUEUE_EVALUATION,
     QUEUE_INTERACTIVE,
+    QUEUE_READINESS,
     QUEUE_SIMULATION,
     QUEUE_TRAINING,
 )
@@ -347,8 +348,11 @@ class ConsoleOptions:
             ),  # fmt: skip
             WorkerPlan("training", (QUEUE_TRAINING,), self.concurrency, self.job_nice),
             WorkerPlan(
-                "evaluation", (QUEUE_EVALUATION,), self.evaluation_concurrency, self.job_nice
-            ),  # fmt: skip
+                "evaluation",
+                (QUEUE_EVALUATION, QUEUE_READINESS),
+                self.evaluation_concurrency,
+                self.job_nice,
+            ),
         ]
         if self.simulation_slots > 0:
             plans.append(WorkerPlan("simulation", (QUEUE_SIMULATION,), self.simulation_slots,
@@ -361,8 +365,29 @@ def web_spec(options: ConsoleOptions, env: Mapping[str, str]) -> ChildSpec:
     take the left-most X-Forwarded-For address (the one a client writes) from any peer and drop
     the connecting address. The console decides instead, from the connecting address and
     RACECRAFT_TRUSTED_PROXIES (console/throttle.py ``client_ip``)."""
-    argv = [sys.executable, "-m", "daphne", "-b", options.host, "-p", str(options.port)]
+    argv = [sys.executable, "-m", "daphne", *daphne_server_args(options.host, options.port)]
     return ChildSpec(name="web", argv=[*argv, "console.asgi:application"], env=env)
+
+
+WEB_LISTEN_BACKLOG = 1024
+"""The web server's listen queue (connections the kernel holds until daphne accepts them; the
+kernel caps it at ``net.core.somaxconn``). daphne's ``-b``/``-p`` give Twisted's default of 50,
+which a crowd arriving at once overflows."""
+WEB_HANDSHAKE_TIMEOUT_S = 30
+"""Seconds a websocket may take from its connection to its acceptance (daphne's default: 5).
+Each broadcast viewer's access is checked on the one database thread before it is accepted:
+500 race-day viewers arriving within 2 s on a loaded 2-core machine took up to 7 s, and at 5 s
+daphne aborted the last ones (a TCP reset: ``bench/bench_race.py --viewers 500`` had 464 of 500
+connected with both defaults, 491 with the backlog alone, 500 with both)."""
+
+
+def daphne_server_args(host: str, port: int) -> list[str]:
+    """daphne's arguments to serve ``host``:``port`` for a crowd: a Twisted endpoint string
+    (``-e``, as daphne's ``-b``/``-p`` build it) with :data:`WEB_LISTEN_BACKLOG`, and
+    :data:`WEB_HANDSHAKE_TIMEOUT_S`."""
+    interface = (host or "127.0.0.1").strip("[]").replace(":", r"\:")  # "": daphne's default
+    endpoint = f"tcp:port={int(port)}:interface={interface}:backlog={WEB_LISTEN_BACKLOG}"
+    return ["-e", endpoint, "--websocket_connect_timeout", str(WEB_HANDSHAKE_TIMEOUT_S)]
 
 
 def worker_spec(plan: WorkerPlan, env: Mapping[str, str]) -> ChildSpec:

@@ -1,196 +1,263 @@
-"""The single-elimination bracket of a head-to-head event: pure dataclasses (no Django, no I/O).
+"""A head-to-head event's bracket: qualifying, then a single-elimination bracket of
+one-against-one races.
 
-The 2020 AWS DeepRacer League ran head-to-head races this way: a qualifying round ranks the
-racers, then the top 4, 8, 16 or 32 qualifiers are seeded into a bracket of one-against-one
-races, seed 1 against the last seed, in the classic order where seeds 1 and 2 can meet only in
-the final, seeds 1-4 only in the semi-finals, and so on. With fewer qualifiers than the bracket
-has places, the missing (highest) seeds are byes: the top seeds they would have met go through
-to round 2 without a race.
+Qualifying is the event's own submissions (the 2020 league's: 3 laps against 6 bots at
+0.75 m/s, total time with penalties; the event's settings). :func:`bracket_seed` puts the top
+4, 8, 16 or 32 qualifiers (each racer's best ranked submission, in leaderboard order) into a
+bracket (the draw: :mod:`leaderboard.bracket_draw`, 1 against the last, byes to the top
+seeds), and every ready match becomes a race job of the two frozen entries
+(:func:`leaderboard.eventraces.entry_race`), or a turn in the race-day queue when the event
+races its bracket live. When a race ends (:func:`bracket_race_finished`, called by the
+league's one ``race_finished`` handler, :mod:`leaderboard.racefinish`) its winner goes through
+and the next matches start, so a bracket runs to its champion unattended.
 
-Seeds are 1-based qualifying ranks; the caller maps them to racers. Rounds are 1-based, match
-indexes 0-based within a round; the winner of match ``i`` goes to match ``i // 2`` of the next
-round, on top from an even ``i`` and at the bottom from an odd one.
+**One source of truth**: the event's ``bracket`` field keeps only the seeding (``seeds``:
+submission ids by seed, and ``withdrawn``); who raced and who went through are the
+:class:`~leaderboard.models.BracketMatch` rows, and the draw's state is derived from them
+(:func:`leaderboard.selectors.bracket_state`, replaying the recorded winners on the seeding).
+
+No bracket is ever left stuck: a match whose race failed is run again once, then the better
+seed goes through; a race nobody finished is won by the car furthest on (the race's winner),
+or, if no car moved, by the better seed; a withdrawn racer's opponent goes through without a
+race. Each such decision is written on the match (``note``).
+
+A community race's races count against its organiser's job quota
+(:func:`~leaderboard.eventraces.race_charged_to`): a match the quota holds back is not
+decided, it waits (noted on the match) and starts when a bracket race ends or the minute's
+reconcile finds room.
+
+This module knows nothing of the race day's queue beyond putting a match into it: the race
+day (:mod:`leaderboard.raceday`) imports this module, never the other way round (an
+import-linter contract in pyproject.toml holds that line).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Any
+import logging
 
-SIZES = (2, 4, 8, 16, 32)
-"""Bracket sizes (places, including byes)."""
-CAPS = (4, 8, 16, 32)
-"""How many qualifiers an event may take into its bracket."""
+from django.db import transaction
 
-Slot = int | None
-"""One side of a match: a seed, or None for a bye or a winner not decided yet."""
+from leaderboard import bracket_draw as draws
+from leaderboard.access import LeagueError, can_manage_event
+from leaderboard.eventraces import LeagueQuotaError, entry_race, race_charged_to
+from leaderboard.live import bracket_changed
+from leaderboard.models import BracketMatch, Event, Notification, RaceDaySlot, Submission
+from leaderboard.selectors import BracketState, bracket_state, leaderboard_rows
+from training.models import JobStatus, RaceJob
+from training.services import ServiceError
 
-
-@dataclass(frozen=True)
-class Match:
-    round: int
-    index: int
-    top: Slot
-    bottom: Slot
-    winner: Slot
-    bye: bool
-
-    @property
-    def ready(self) -> bool:
-        """Both racers known, not a bye, no winner yet: it can be raced."""
-        return None not in (self.top, self.bottom) and not self.bye and self.winner is None
-
-
-@dataclass(frozen=True)
-class Bracket:
-    """``size`` places (one of SIZES) for ``entries`` seeds, ``size // 2 < entries <= size``;
-    ``rounds[0]`` holds ``size // 2`` matches, each later round half as many, the last the final."""
-
-    size: int
-    entries: int
-    rounds: tuple[tuple[Match, ...], ...]
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain ints, bools, None, lists and dicts, for JSON."""
-        return {
-            "size": self.size,
-            "entries": self.entries,
-            "rounds": [[_match_dict(m) for m in matches] for matches in self.rounds],
-        }
-
-    @classmethod
-    def from_dict(cls, data: Any) -> Bracket:
-        """The inverse of :meth:`to_dict`; ValueError unless ``data`` is a bracket that
-        :func:`seed_bracket` and :func:`record_winner` could have made."""
-        if not isinstance(data, dict) or set(data) != {"size", "entries", "rounds"}:
-            raise ValueError("a bracket is a dict with exactly size, entries and rounds")
-        size, entries, rounds = data["size"], data["entries"], data["rounds"]
-        if not _is_int(size) or size not in SIZES:
-            raise ValueError(f"bracket size must be one of {SIZES}, not {size!r}")
-        if not _is_int(entries):
-            raise ValueError(f"bracket entries must be an int, not {entries!r}")
-        if not size // 2 < entries <= size:
-            raise ValueError(f"a bracket of {size} places holds {size // 2 + 1}-{size} entries")
-        lengths = [size >> r for r in range(1, size.bit_length())]
-        if not isinstance(rounds, list) or [_len(r) for r in rounds] != lengths:
-            raise ValueError(f"a bracket of {size} places has rounds of {lengths} matches")
-        parsed = cls(size, entries, tuple(tuple(_parse_match(m) for m in r) for r in rounds))
-        # Replay the recorded winners on a fresh seeding: only a reachable state compares equal.
-        rebuilt = seed_bracket(entries)
-        for match in (m for r in parsed.rounds for m in r if not m.bye):
-            if match.winner is not None:
-                rebuilt = record_winner(rebuilt, match.round, match.index, match.winner)
-        if rebuilt != parsed:
-            raise ValueError("the bracket does not follow from its seeding and recorded winners")
-        return parsed
+__all__ = [
+    "BRACKET_SIZES",
+    "QUOTA_WAIT_NOTE",
+    "BracketState",
+    "LeagueQuotaError",
+    "bracket_race_finished",
+    "bracket_seed",
+    "bracket_state",
+    "bracket_withdraw",
+    "brackets_resume",
+    "match_race",
+    "race_charged_to",
+]
+log = logging.getLogger(__name__)
+BRACKET_SIZES = (4, 8, 16, 32)
+MAX_RACE_ATTEMPTS = 2
+QUOTA_WAIT_NOTE = "waits for one of the organiser's jobs to finish (their job quota is full)"
 
 
-def bracket_size(entries: int, cap: int = 32) -> int:
-    """Places in the bracket for ``entries`` qualifiers: the smallest of SIZES that holds them,
-    at most ``cap`` (one of CAPS; only the top ``cap`` qualify). ValueError on a bad cap or
-    fewer than 2 entries."""
-    if cap not in CAPS:
-        raise ValueError(f"the bracket cap must be one of {CAPS}, not {cap!r}")
-    if entries < 2:
-        raise ValueError("a bracket needs at least 2 entries")
-    return next(s for s in SIZES if s >= min(entries, cap))
+def _state(event: Event) -> tuple[draws.Bracket, list[int], set[int]]:
+    state = bracket_state(event)
+    assert state is not None, "the bracket is seeded"
+    return state.draw, state.seeds, state.withdrawn
 
 
-def seed_order(size: int) -> tuple[int, ...]:
-    """Seeds in bracket order, paired off two by two for round 1: ``(1, 4, 2, 3)`` for 4."""
-    if size not in SIZES:
-        raise ValueError(f"bracket size must be one of {SIZES}, not {size!r}")
-    order = (1, 2)
-    while len(order) < size:
-        n = 2 * len(order)
-        order = tuple(x for s in order for x in (s, n + 1 - s))
-    return order
+def _save(event: Event, seeds: list[int], withdrawn: set[int]) -> None:
+    """The seeding (the only part of the bracket the event keeps; results are the rows)."""
+    event.bracket = {"seeds": seeds, "withdrawn": sorted(withdrawn)}
+    event.save(update_fields=["bracket"])
 
 
-def seed_bracket(entries: int, cap: int = 32) -> Bracket:
-    """The bracket of the top ``min(entries, cap)`` qualifiers, byes already decided."""
-    size = bracket_size(entries, cap)
-    entries = min(entries, cap)
-    order = seed_order(size)
-    first = []
-    for i in range(size // 2):
-        top, bottom = order[2 * i], order[2 * i + 1]
-        bye = bottom > entries  # the top seed of a pair is always the lower number
-        first.append(Match(1, i, top, None if bye else bottom, top if bye else None, bye))
-    rounds = [tuple(first)]
-    while len(rounds[-1]) > 1:
-        feeders = rounds[-1]
-        r = len(rounds) + 1
-        rounds.append(
-            tuple(
-                Match(r, i, feeders[2 * i].winner, feeders[2 * i + 1].winner, None, False)
-                for i in range(len(feeders) // 2)
-            )
-        )
-    return Bracket(size, entries, tuple(rounds))
+def bracket_seed(*, event: Event, user) -> draws.Bracket:
+    """Seed the event's bracket from its qualifying leaderboard and start the first races.
+    Refused unless the user runs the event, the event has a bracket and at least two ranked
+    qualifiers, and it is not seeded yet."""
+    if not can_manage_event(user, event):
+        raise LeagueError("only the event's organiser or a race facilitator runs its bracket")
+    if event.bracket_size not in BRACKET_SIZES:
+        raise LeagueError("this event has no bracket (set its size to 4, 8, 16 or 32)")
+    with transaction.atomic():
+        event = Event.objects.select_for_update(no_key=True).get(pk=event.pk)
+        if event.bracket:
+            raise LeagueError("the bracket is already seeded")
+        rows = leaderboard_rows(event)
+        if len(rows) < 2:
+            raise LeagueError("a bracket needs at least two ranked qualifiers")
+        bracket = draws.seed_bracket(len(rows), cap=event.bracket_size)
+        seeds = [row.submission_id for row in rows[: bracket.entries]]
+        _save(event, seeds, set())
+        _advance(event)
+    return bracket
 
 
-def record_winner(bracket: Bracket, round: int, index: int, winner: int) -> Bracket:
-    """A copy of ``bracket`` with ``winner`` recorded for the match and moved on to the next
-    round. ValueError if there is no such match, it is a bye, it already has a winner, a side
-    is still undecided, or ``winner`` is not one of its two racers."""
-    if not (1 <= round <= len(bracket.rounds) and 0 <= index < len(bracket.rounds[round - 1])):
-        raise ValueError(f"there is no match {index} in round {round}")
-    match = bracket.rounds[round - 1][index]
-    where = f"match {index} of round {round}"
-    if match.bye:
-        raise ValueError(f"{where} is a bye: seed {match.top} is through without a race")
-    if match.winner is not None:
-        raise ValueError(f"{where} already has a winner: seed {match.winner}")
-    if match.top is None or match.bottom is None:
-        raise ValueError(f"{where} is not ready: a side is still undecided")
-    if winner not in (match.top, match.bottom):
-        raise ValueError(f"seed {winner!r} is not racing in {where} ({match.top} v {match.bottom})")
-    rounds = [list(r) for r in bracket.rounds]
-    rounds[round - 1][index] = replace(match, winner=winner)
-    if round < len(rounds):
-        after = rounds[round][index // 2]
-        side = "top" if index % 2 == 0 else "bottom"
-        rounds[round][index // 2] = replace(after, **{side: winner})
-    return replace(bracket, rounds=tuple(tuple(r) for r in rounds))
+def bracket_withdraw(*, event: Event, user, submission: Submission) -> None:
+    """Withdraw ``submission`` from the bracket (its racer, or whoever runs the event): a match
+    not yet raced goes to the opponent; a race already queued runs with the car out."""
+    if submission.racer_id != user.pk and not can_manage_event(user, event):
+        raise LeagueError("only the racer or the event's organiser can withdraw an entry")
+    with transaction.atomic():
+        event = Event.objects.select_for_update(no_key=True).get(pk=event.pk)
+        if not event.bracket:
+            raise LeagueError("the bracket is not seeded yet")
+        _, seeds, withdrawn = _state(event)
+        if submission.pk not in seeds:
+            raise LeagueError("this entry is not in the bracket")
+        withdrawn.add(submission.pk)
+        _save(event, seeds, withdrawn)
+        for match in BracketMatch.objects.filter(event=event, winner__isnull=True,
+                                                 race__isnull=False):  # fmt: skip
+            race = match.race
+            if race.status == JobStatus.QUEUED and submission.pk in (match.top_id, match.bottom_id):
+                entries = race.entries
+                for entry in entries:
+                    if entry.get("tag") == submission.pk:
+                        entry["withdrawn"] = "its racer withdrew"
+                RaceJob.objects.filter(pk=race.pk).update(entries=entries)
+        _advance(event)
 
 
-def next_matches(bracket: Bracket) -> list[Match]:
-    """Every match that can be raced now, by round then index."""
-    return [m for r in bracket.rounds for m in r if m.ready]
+def bracket_race_finished(*, race_id: int) -> BracketMatch | None:
+    """A bracket's race ended: its winner goes through and the next matches start (idempotent:
+    a match already decided is left alone). Returns the match, if the race was one. A match
+    raced on the race day is recorded after its turn ended (:mod:`leaderboard.racefinish`)."""
+    match = BracketMatch.objects.filter(race_id=race_id).select_related("race").first()
+    if match is None:
+        return None
+    with transaction.atomic():
+        event = Event.objects.select_for_update(no_key=True).get(pk=match.event_id)
+        match = BracketMatch.objects.select_related("race").get(pk=match.pk)
+        race = match.race
+        if match.winner_id is not None or race is None or race.pk != race_id:
+            return match
+        if race.status == JobStatus.COMPLETED:
+            winner, note = _race_winner(match, race)
+            _decide(event, match, winner, note)
+        elif race.status in (JobStatus.FAILED, JobStatus.CANCELED):
+            if match.attempts < MAX_RACE_ATTEMPTS and event.bracket_on_race_day:
+                match.race = None  # back in the race-day queue (_advance)
+                match.save(update_fields=["race"])
+            elif match.attempts < MAX_RACE_ATTEMPTS:
+                _launch(event, match)
+            else:
+                _decide(event, match, match.top_id, f"the race could not be run ({race.error}); "
+                        "the better qualifier goes through")  # fmt: skip
+        _advance(event)
+    return match
 
 
-def champion(bracket: Bracket) -> int | None:
-    """The final's winner, or None while it is undecided."""
-    return bracket.rounds[-1][0].winner
+def _race_winner(match: BracketMatch, race: RaceJob) -> tuple[int | None, str]:
+    winner_model = race.results.get("winner") if isinstance(race.results, dict) else None
+    for entry in race.entries:
+        if winner_model is not None and entry.get("model") == winner_model:
+            car = next((c for c in race.car_rows if c.get("model") == winner_model), {})
+            note = "" if car.get("finished") else "won on distance at the time limit"
+            return entry.get("tag"), note
+    return match.top_id, "no car moved; the better qualifier goes through"
 
 
-def is_finished(bracket: Bracket) -> bool:
-    return champion(bracket) is not None
+def _decide(event: Event, match: BracketMatch, winner: int | None, note: str) -> None:
+    bracket, seeds, _ = _state(event)
+    seed = seeds.index(winner) + 1 if winner in seeds else None
+    if seed is None:
+        return
+    bracket = draws.record_winner(bracket, match.round, match.index, seed)  # checks the move
+    match.winner_id, match.note = winner, note[:255]
+    match.save(update_fields=["winner", "note"])  # the one record of the result
+    transaction.on_commit(lambda: bracket_changed(event.pk))
+    champion = draws.champion(bracket)
+    if champion is not None:
+        sub = Submission.objects.get(pk=seeds[champion - 1])
+        Notification.objects.create(user=sub.racer, message=f"You won the {event.name} bracket!",
+                                    link=f"/league/events/{event.pk}/bracket/")  # fmt: skip
 
 
-def _is_int(value: Any) -> bool:
-    return type(value) is int  # bool is an int subclass, and True is no seed
+def _advance(event: Event) -> None:
+    """Start (or queue for the race day) every ready match that has no race yet; a match
+    against a withdrawn racer is decided at once."""
+    for _ in range(64):  # decisions can make more matches ready; a bracket has < 64 rounds
+        bracket, seeds, withdrawn = _state(event)
+        progressed = False
+        for ready in draws.next_matches(bracket):
+            top, bottom = seeds[ready.top - 1], seeds[ready.bottom - 1]
+            match, _ = BracketMatch.objects.get_or_create(
+                event=event, round=ready.round, index=ready.index,
+                defaults={"top_id": top, "bottom_id": bottom},
+            )  # fmt: skip
+            if (top in withdrawn or bottom in withdrawn) and match.race_id is None:
+                through = bottom if top in withdrawn else top
+                _decide(event, match, through, "the opponent withdrew")
+                progressed = True
+                break
+            if match.race_id is None:
+                if event.bracket_on_race_day:
+                    queued = RaceDaySlot.objects.filter(match=match, status__in=(
+                        RaceDaySlot.Status.WAITING, RaceDaySlot.Status.RUNNING))  # fmt: skip
+                    if not queued.exists():
+                        _queue_on_race_day(event, match)
+                else:
+                    _launch(event, match)
+        if not progressed:
+            return
 
 
-def _len(value: Any) -> int | None:
-    return len(value) if isinstance(value, list) else None
+def _queue_on_race_day(event: Event, match: BracketMatch) -> None:
+    last = RaceDaySlot.objects.filter(event=event).order_by("-position").first()
+    RaceDaySlot.objects.create(event=event, match=match, position=(last.position + 1) if last
+                               else 1)  # fmt: skip
 
 
-_FIELDS = ("round", "index", "top", "bottom", "winner", "bye")
+def match_race(event: Event, match: BracketMatch, *, paced: bool = False,
+               broadcast_group: str = "") -> RaceJob:  # fmt: skip
+    """A race job of the match's two frozen entries (top seed on pole in odd rounds, the other
+    in even ones: the grid swaps between rounds)."""
+    subs = [match.top, match.bottom]
+    return entry_race(event, subs, laps=event.bracket_laps, round_number=match.round - 1,
+                      title=f"{event.name}: round {match.round}, match {match.index + 1}",
+                      paced=paced, broadcast_group=broadcast_group)  # fmt: skip
 
 
-def _match_dict(match: Match) -> dict[str, Any]:
-    return {name: getattr(match, name) for name in _FIELDS}
+def _launch(event: Event, match: BracketMatch) -> None:
+    try:
+        race = match_race(event, match)
+    except LeagueQuotaError:
+        # Not a reason to decide the match: it waits (race None) and starts when a race of
+        # the bracket ends or the minute's reconcile finds the organiser a free job.
+        if match.note != QUOTA_WAIT_NOTE:
+            match.note = QUOTA_WAIT_NOTE
+            match.save(update_fields=["note"])
+            transaction.on_commit(lambda: bracket_changed(event.pk))
+        return
+    except (LeagueError, ServiceError) as exc:
+        message = getattr(exc, "message", str(exc))
+        _decide(event, match, match.top_id, f"the race could not start ({message}); "
+                "the better qualifier goes through")  # fmt: skip
+        return
+    match.race, match.attempts, match.note = race, match.attempts + 1, ""
+    match.save(update_fields=["race", "attempts", "note"])
+    transaction.on_commit(lambda: bracket_changed(event.pk))
 
 
-def _parse_match(data: Any) -> Match:
-    if not isinstance(data, dict) or set(data) != set(_FIELDS):
-        raise ValueError(f"a match is a dict with exactly {', '.join(_FIELDS)}")
-    if not all(_is_int(data[k]) for k in ("round", "index")):
-        raise ValueError("a match's round and index are ints")
-    if not all(data[k] is None or _is_int(data[k]) for k in ("top", "bottom", "winner")):
-        raise ValueError("a match's top, bottom and winner are ints or None")
-    if type(data["bye"]) is not bool:
-        raise ValueError("a match's bye is a bool")
-    return Match(**data)
+def brackets_resume() -> int:
+    """Start the bracket matches that waited for their organiser's job quota (a safety net
+    beside the start that follows each bracket race's end). Returns how many started."""
+    waiting = BracketMatch.objects.filter(
+        winner__isnull=True, race__isnull=True, event__bracket_on_race_day=False,
+        note=QUOTA_WAIT_NOTE,
+    )  # fmt: skip
+    started = 0
+    for event_id in set(waiting.values_list("event_id", flat=True)):
+        with transaction.atomic():
+            event = Event.objects.select_for_update(no_key=True).get(pk=event_id)
+            before = BracketMatch.objects.filter(event=event, race__isnull=False).count()
+            _advance(event)
+            started += BracketMatch.objects.filter(event=event, race__isnull=False).count() - before
+    return started

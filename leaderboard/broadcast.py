@@ -7,13 +7,18 @@ spectator link off (or replacing it) closes, at once, the open sockets it let in
 4403): the event's group gets an access message and each socket checks its access again (each
 viewer's 10-second ping checks it too). Messages, as JSON:
 
-- a binary message for each frame of the race on track: a 4-byte big-endian length, that many
-  bytes of JSON ``{"timing": {...}, "t": <unix time>}``, then the JPEG; built once by the
-  race's worker at 15 frames/s (real time) however many watch, published once to Redis, and
-  written untouched by each web process's :class:`FrameHub` to its viewers (the timing tower:
-  :func:`training.worker.racelive.race_timing`). A frame older than :data:`STALE_FRAME_S`
-  when it reaches the hub is dropped: a lagging process skips frames rather than fall seconds
-  behind the race;
+- a binary message for each frame of the race on track, in the one frame format
+  (:mod:`racing.framecodec`: a 4-byte big-endian length, that many bytes of JSON ``{"timing":
+  {...}, "shot": {...}, "layout": {...}, "title": ..., "t": <unix time>}``, then the JPEG);
+  built once by the race's worker at 15 frames/s (real time) however many watch, published
+  once to Redis, and written untouched by each web process's :class:`FrameHub` to its viewers.
+  The timing (:class:`racing.timing.Timing`) carries names, colours, times and positions only:
+  spectators see the same frames. A process that cannot keep up skips frames, never falls
+  behind: the hub reads Redis as fast as frames come and keeps only the newest frame not yet
+  written; its writer sends that one as soon as it is done with the last. A slow machine shows
+  fewer frames, never none (frames are not judged by their age in wall time: a loaded machine's
+  frames, or a worker whose clock is behind, would all be "stale"). A frame that cannot be read
+  is dropped;
 - ``{"type": "status", ...}``: a race went on track (``started``, ``title``), or ended
   (``over``, with ``winner``, ``winner_time_s`` and ``standings``: names, positions and
   times), or the queue changed (``queue``, ``paused``). Spectators get only that
@@ -24,15 +29,14 @@ viewer's 10-second ping checks it too). Messages, as JSON:
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import secrets
-import struct
 import time
 from typing import Any
 from urllib.parse import parse_qs
 
 import redis.asyncio as aioredis
+from asgiref.sync import sync_to_async
 from channels.db import database_sync_to_async
 from channels.generic.websocket import AsyncJsonWebsocketConsumer
 from django.conf import settings
@@ -40,33 +44,78 @@ from django.conf import settings
 from leaderboard.access import can_manage_event, can_view_event
 from leaderboard.live import broadcast_group, spectator_status
 from leaderboard.models import Event
+from racing.framecodec import FrameError, decode_header
 from training import live
 
 log = logging.getLogger(__name__)
 NOT_FOUND = 4404
 REVOKED = 4403
 """The close code of a viewer whose access ended while watching (the link turned off)."""
-STALE_FRAME_S = 0.5
-"""A frame this old (seconds since the worker built it) is not sent any more."""
 LISTEN_POLL_S = 1.0
 """How often, at the longest, a process's listener checks that it still has viewers (s)."""
+MARK_EVERY_S = 2.0
+"""A process marks a group watched (a Redis write) at most this often: 500 viewers arriving
+at once make one write, not 500 queued behind the access checks' database thread."""
+_marked: dict[str, float] = {}
 
 
-def frame_age_s(payload: bytes) -> float:
-    """Seconds since the worker built this frame (its header's ``t``); inf when unreadable."""
+async def mark_watching(group: str) -> None:
+    """:func:`training.live.mark_watching`, at most every :data:`MARK_EVERY_S` per process, off
+    the database thread (it is a Redis write)."""
+    now = time.monotonic()
+    if now - _marked.get(group, float("-inf")) < MARK_EVERY_S:
+        return
+    _marked[group] = now
+    await sync_to_async(live.mark_watching, thread_sensitive=False)(group)
+
+
+def readable(payload: bytes) -> bool:
+    """Whether ``payload`` is a frame in the one frame format (its header can be read)."""
     try:
-        (length,) = struct.unpack("!I", payload[:4])
-        return time.time() - float(json.loads(payload[4 : 4 + length])["t"])
-    except (ValueError, KeyError, TypeError, struct.error):
-        return float("inf")
+        decode_header(payload)
+    except FrameError:
+        return False
+    return True
+
+
+class NewestFrame:
+    """One channel's newest frame not yet written to its viewers: the reader replaces it (the
+    one it replaces is skipped), the writer takes it when it is free."""
+
+    def __init__(self) -> None:
+        self.frame: bytes | None = None
+        self.skipped = 0
+        self._ready = asyncio.Event()
+
+    def put(self, frame: bytes) -> None:
+        if self.frame is not None:
+            self.skipped += 1
+        self.frame = frame
+        self._ready.set()
+
+    async def take(self, timeout: float) -> bytes | None:
+        """The newest frame, once there is one; None after ``timeout`` seconds without."""
+        try:
+            await asyncio.wait_for(self._ready.wait(), timeout)
+        except TimeoutError:
+            return None
+        self._ready.clear()
+        frame, self.frame = self.frame, None
+        return frame
 
 
 class FrameHub:
     """A web process's one subscription per broadcast channel, fanned out to its viewers: a
-    frame crosses Redis once per process, and each viewer costs only its websocket write."""
+    frame crosses Redis once per process, and each viewer costs only its websocket write.
+
+    Two tasks per channel: the reader takes every frame off Redis as it comes (so Redis never
+    queues frames for a slow process) into :attr:`newest`; the writer sends the newest one to
+    every viewer, then the newest one again. However slow the writing, a viewer gets the
+    newest frame next: a delayed process skips frames, never shows old ones, never none."""
 
     viewers: dict[str, set[AsyncJsonWebsocketConsumer]] = {}
     tasks: dict[str, asyncio.Task] = {}
+    newest: dict[str, NewestFrame] = {}
 
     @classmethod
     def join(cls, channel: str, viewer: AsyncJsonWebsocketConsumer) -> None:
@@ -88,39 +137,54 @@ class FrameHub:
 
     @classmethod
     async def _listen(cls, channel: str) -> None:
-        """Subscribe (again after a Redis outage, every second) and write each fresh frame
-        to every viewer of this process, for as long as this task is the channel's. It looks
-        at least every :data:`LISTEN_POLL_S`, so it ends once its viewers are gone even when
-        a cancel is lost inside the Redis client (a listener left behind blocked the test
-        loop's shutdown for 600 s on a loaded machine)."""
+        """Subscribe (again after a Redis outage, every second) and keep each readable frame
+        as the channel's newest, with a writer task (:meth:`_write`) beside it, for as long as
+        this task is the channel's. It looks at least every :data:`LISTEN_POLL_S`, so it ends
+        once its viewers are gone even when a cancel is lost inside the Redis client (a
+        listener left behind blocked the test loop's shutdown for 600 s on a loaded machine)."""
         me = asyncio.current_task()
-        while cls.tasks.get(channel) is me:
-            client = aioredis.Redis.from_url(settings.REDIS_URL)
-            pubsub = client.pubsub()
-            try:
-                await pubsub.subscribe(channel)
-                while cls.tasks.get(channel) is me:
-                    message = await pubsub.get_message(ignore_subscribe_messages=True,
-                                                       timeout=LISTEN_POLL_S)  # fmt: skip
-                    if message is None or message.get("type") != "message":
-                        continue
-                    data = message["data"]
-                    if frame_age_s(data) > STALE_FRAME_S:
-                        continue
-                    for viewer in list(cls.viewers.get(channel, ())):
-                        try:
-                            await viewer.send(bytes_data=data)
-                        except Exception:  # noqa: BLE001 - one viewer gone: the others go on
-                            log.debug("could not send a frame to a viewer", exc_info=True)
-            except aioredis.RedisError:
-                log.warning("broadcast %s: Redis unavailable; subscribing again", channel)
-                await asyncio.sleep(1.0)
-            finally:
+        newest = cls.newest[channel] = NewestFrame()
+        writer = asyncio.get_running_loop().create_task(cls._write(channel, newest, me))
+        try:
+            while cls.tasks.get(channel) is me:
+                client = aioredis.Redis.from_url(settings.REDIS_URL)
+                pubsub = client.pubsub()
                 try:
-                    await pubsub.aclose()
-                    await client.aclose()
+                    await pubsub.subscribe(channel)
+                    while cls.tasks.get(channel) is me:
+                        message = await pubsub.get_message(ignore_subscribe_messages=True,
+                                                           timeout=LISTEN_POLL_S)  # fmt: skip
+                        if message is None or message.get("type") != "message":
+                            continue
+                        if readable(message["data"]):
+                            newest.put(message["data"])
                 except aioredis.RedisError:
-                    pass
+                    log.warning("broadcast %s: Redis unavailable; subscribing again", channel)
+                    await asyncio.sleep(1.0)
+                finally:
+                    try:
+                        await pubsub.aclose()
+                        await client.aclose()
+                    except aioredis.RedisError:
+                        pass
+        finally:
+            writer.cancel()
+            if cls.newest.get(channel) is newest:
+                del cls.newest[channel]
+
+    @classmethod
+    async def _write(cls, channel: str, newest: NewestFrame, owner: asyncio.Task) -> None:
+        """Write the channel's newest frame to each of its viewers, then the newest one again,
+        for as long as ``owner`` (its reader) is the channel's."""
+        while cls.tasks.get(channel) is owner:
+            frame = await newest.take(LISTEN_POLL_S)
+            if frame is None:
+                continue
+            for viewer in list(cls.viewers.get(channel, ())):
+                try:
+                    await viewer.send(bytes_data=frame)
+                except Exception:  # noqa: BLE001 - one viewer gone: the others go on
+                    log.debug("could not send a frame to a viewer", exc_info=True)
 
 
 def may_watch(user, event: Event, token: str) -> bool:
@@ -160,7 +224,7 @@ class BroadcastConsumer(AsyncJsonWebsocketConsumer):
         await self.channel_layer.group_add(self.group, self.channel_name)
         await self.accept()
         FrameHub.join(live.broadcast_channel(self.group), self)
-        await database_sync_to_async(live.mark_watching)(self.group)
+        await mark_watching(self.group)
 
     async def _leave(self) -> None:
         if self.group:
@@ -186,7 +250,7 @@ class BroadcastConsumer(AsyncJsonWebsocketConsumer):
         """Viewers only listen; a ping (every 10 s) keeps the worker sending frames, and checks
         the viewer's access again (the safety net of a lost access message)."""
         if self.group and await self._still_allowed():
-            await database_sync_to_async(live.mark_watching)(self.group)
+            await mark_watching(self.group)
 
     async def raceday_access(self, message: dict) -> None:
         """The event's access changed (:func:`leaderboard.live.broadcast_access_changed`)."""

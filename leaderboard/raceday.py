@@ -5,7 +5,10 @@ whose frames go to the event's broadcast page (:func:`leaderboard.live.broadcast
 
 Only the event's organiser and race facilitators run a race day (:func:`can_manage_event`).
 One turn is on track at a time; a turn whose race ends (finished, failed or stopped) is done
-and the queue moves on, so it is never left stuck.
+and the queue moves on, so it is never left stuck (the league's one ``race_finished`` handler,
+:mod:`leaderboard.racefinish`, calls :func:`race_day_race_finished`). A bracket match raced as
+a turn comes from :mod:`leaderboard.bracket`, which never imports this module. With the event's
+live speed control on, the racer on track sets their car's speed (:mod:`leaderboard.speed`).
 """
 
 from __future__ import annotations
@@ -14,9 +17,11 @@ import secrets
 
 from django.db import transaction
 from django.db.models import Max
+from django.urls import reverse
 
 from leaderboard.access import LeagueError, can_manage_event
-from leaderboard.headtohead import entry_race, match_race
+from leaderboard.bracket import match_race
+from leaderboard.eventraces import entry_race
 from leaderboard.live import (
     broadcast_access_changed,
     broadcast_group,
@@ -24,7 +29,8 @@ from leaderboard.live import (
     race_standings,
 )
 from leaderboard.models import Event, Notification, RaceDaySlot, Submission
-from training.models import FINISHED_JOB_STATUSES, JobStatus, RaceJob
+from training.models import FINISHED_JOB_STATUSES, RaceJob
+from training.services.race_control import race_stop
 
 Slot = RaceDaySlot
 
@@ -91,7 +97,7 @@ def race_day_pause(*, event: Event, user, paused: bool) -> None:
 def race_day_launch(*, event: Event, user) -> RaceDaySlot:
     """Put the next waiting turn on track: a race job paced at real time, broadcast. A
     community race's turn counts against its organiser's job quota: when it is full this
-    raises :class:`~leaderboard.headtohead.LeagueQuotaError` and the turn stays first in the
+    raises :class:`~leaderboard.eventraces.LeagueQuotaError` and the turn stays first in the
     queue (nothing is started, nothing is lost)."""
     _check(event, user)
     with transaction.atomic():
@@ -151,13 +157,13 @@ def race_day_race_finished(*, race_id: int) -> RaceDaySlot | None:
 
 
 def race_day_stop(*, event: Event, user) -> None:
-    """Stop the race on track (it keeps what it drove; the turn is done)."""
+    """Stop the race on track (it keeps what it drove; the turn is done when it has
+    stopped), through training's service: the league writes no race job."""
     _check(event, user)
     slot = RaceDaySlot.objects.filter(event=event, status=RaceDaySlot.Status.RUNNING).first()
     if slot is None or slot.race is None:
         raise LeagueError("no race is on track")
-    RaceJob.objects.filter(pk=slot.race_id, status__in=(JobStatus.QUEUED, JobStatus.INITIALIZING,
-                           JobStatus.IN_PROGRESS)).update(stop_requested=True)  # fmt: skip
+    race_stop(race=slot.race, by=f"race day of event {event.pk} ({user})")
 
 
 def race_day_spectator_link(*, event: Event, user, enabled: bool) -> str:
@@ -174,14 +180,18 @@ def race_day_spectator_link(*, event: Event, user, enabled: bool) -> str:
 
 
 def _notify_next(event: Event) -> None:
-    """Tell the racer(s) of the first waiting turn they are up next (once per turn)."""
+    """Tell the racer(s) of the first waiting turn they are up next (once per turn); with live
+    speed control on, the notice opens their speed page."""
     slot = RaceDaySlot.objects.filter(event=event, status=RaceDaySlot.Status.WAITING).first()
     if slot is None or slot.notified:
         return
     subs = [slot.submission] if slot.submission_id else [slot.match.top, slot.match.bottom]
     for sub in subs:
         if sub is not None:
-            Notification.objects.create(user=sub.racer, link=f"/league/events/{event.pk}/",
+            speed = event.live_speed_control
+            link = reverse("league-race-speed" if speed else "league-event", args=[event.pk])
+            Notification.objects.create(user=sub.racer, link=link,
                                         message=f"You're up next at {event.name}'s race day "
-                                        f"({sub.model_name}).")  # fmt: skip
+                                        f"({sub.model_name})"
+                                        f"{': set your speed here' if speed else ''}.")  # fmt: skip
     RaceDaySlot.objects.filter(pk=slot.pk).update(notified=True)

@@ -17,7 +17,7 @@ from django.shortcuts import get_object_or_404, redirect, render
 from django.urls import reverse
 from django.views.decorators.http import require_safe
 
-from leaderboard import headtohead, raceday
+from leaderboard import bracket, raceday
 from leaderboard.access import LeagueError, can_manage_event, can_view_event
 from leaderboard.broadcast import may_watch
 from leaderboard.models import BracketMatch, Event, RaceDaySlot, Submission
@@ -61,7 +61,7 @@ def event_bracket(request: HttpRequest, event_id: int) -> HttpResponse:
             return _act(
                 request,
                 lambda: (
-                    headtohead.bracket_seed(event=event, user=request.user)
+                    bracket.bracket_seed(event=event, user=request.user)
                     and "The bracket is seeded; the first races are on their way."
                 ),
                 back,
@@ -70,7 +70,7 @@ def event_bracket(request: HttpRequest, event_id: int) -> HttpResponse:
                                        event=event)  # fmt: skip
 
         def withdraw() -> str:
-            headtohead.bracket_withdraw(event=event, user=request.user, submission=submission)
+            bracket.bracket_withdraw(event=event, user=request.user, submission=submission)
             return f"{submission.model_name} was withdrawn from the bracket."
 
         return _act(request, withdraw, back)

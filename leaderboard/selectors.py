@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import asdict, dataclass
 
 from django.db.models import Prefetch, Q, QuerySet
 from django.urls import reverse
 from django.utils import timezone
 
-from leaderboard import bracket as bracket_lib
-from leaderboard import ranking
+from leaderboard import bracket_draw, ranking
 from leaderboard.access import can_manage_event, can_view_event, is_facilitator
 from leaderboard.divisions import division_for
 from leaderboard.models import (
@@ -194,12 +194,48 @@ class MatchView:
     has_video: bool
 
 
+@dataclass(frozen=True)
+class BracketState:
+    """A seeded bracket: the draw with every recorded winner, the entries by seed
+    (submission ids; seed ``k`` is ``seeds[k - 1]``) and the withdrawn entries."""
+
+    draw: bracket_draw.Bracket
+    seeds: list[int]
+    withdrawn: set[int]
+
+
+def bracket_state(event: Event) -> BracketState | None:
+    """The event's bracket (None before it is seeded): the event keeps only its seeding, the
+    match rows who went through (one source of truth, :mod:`leaderboard.bracket`); the draw
+    is the seeding's with each decided match's winner replayed, round by round."""
+    data = event.bracket
+    if not data or not data.get("seeds"):
+        return None
+    seeds = [int(s) for s in data["seeds"]]
+    draw = bracket_draw.seed_bracket(len(seeds))
+    seed_of = {sub: k for k, sub in enumerate(seeds, start=1)}
+    decided = BracketMatch.objects.filter(event=event, winner__isnull=False).order_by(
+        "round", "index"
+    )
+    for match in decided.values("round", "index", "winner_id"):
+        try:
+            draw = bracket_draw.record_winner(
+                draw, match["round"], match["index"], seed_of.get(match["winner_id"], 0)
+            )
+        except ValueError:  # a winner whose entry was deleted since: the match stays open
+            logging.getLogger(__name__).warning(
+                "event %s: round %s match %s does not fit its bracket",
+                event.pk, match["round"], match["index"],
+            )  # fmt: skip
+    return BracketState(draw, seeds, {int(s) for s in data.get("withdrawn", [])})
+
+
 def bracket_rounds(event: Event) -> list[list[MatchView]]:
     """The bracket, round by round, as the page shows it (empty before it is seeded)."""
-    if not event.bracket:
+    bracket = bracket_state(event)
+    if bracket is None:
         return []
-    state = bracket_lib.Bracket.from_dict(event.bracket["bracket"])
-    seeds = list(event.bracket["seeds"])
+    state, seeds = bracket.draw, bracket.seeds
     subs = {s.pk: s for s in Submission.objects.filter(pk__in=seeds).select_related("racer")}
     aliases = {p.user_id: p.alias for p in RacerProfile.objects.filter(
         user_id__in=[s.racer_id for s in subs.values()])}  # fmt: skip
@@ -214,7 +250,7 @@ def bracket_rounds(event: Event) -> list[list[MatchView]]:
             return f"Seed {seed}"
         return f"{aliases.get(sub.racer_id) or f'racer-{sub.racer_id}'} · {sub.model_name}"
 
-    withdrawn = set(event.bracket.get("withdrawn", []))
+    withdrawn = bracket.withdrawn
     rounds = []
     for games in state.rounds:
         row = []

@@ -1,6 +1,8 @@
 """The league learns about finished evaluations: ``post_save`` on EvaluationJob (rows saved
 with ``save()``) and training's ``evaluation_finished`` (jobs finished with ``update()``).
-Both lead to the idempotent :func:`~leaderboard.services.submission_record_result`."""
+Both lead to the idempotent :func:`~leaderboard.services.submission_record_result`. Finished
+races have one receiver, which asks :func:`~leaderboard.racefinish.league_race_finished`
+whose race it was (a race-day turn or a bracket match)."""
 
 from __future__ import annotations
 
@@ -9,8 +11,7 @@ import logging
 from django.db.models.signals import post_save
 from django.dispatch import receiver
 
-from leaderboard.headtohead import bracket_race_finished
-from leaderboard.raceday import race_day_race_finished
+from leaderboard.racefinish import league_race_finished
 from leaderboard.services import submission_record_result
 from training.models import FINISHED_JOB_STATUSES, EvaluationJob, RaceJob
 from training.signals import evaluation_finished, race_finished
@@ -38,13 +39,8 @@ def evaluation_done(sender, evaluation_id: int, **kwargs) -> None:
 
 @receiver(race_finished, sender=RaceJob, dispatch_uid="league-race-finished")
 def race_done(sender, race_id: int, **kwargs) -> None:
-    """A race day's turn or a bracket's match ended: the queue moves (first, so that a match
-    whose race failed can join it again), then the bracket goes on."""
+    """A race ended: the race day or the bracket moves on, as the race was theirs."""
     try:
-        race_day_race_finished(race_id=race_id)
+        league_race_finished(race_id=race_id)
     except Exception:  # noqa: BLE001 - never break the job's bookkeeping
-        log.exception("could not record the race-day race %s", race_id)
-    try:
-        bracket_race_finished(race_id=race_id)
-    except Exception:  # noqa: BLE001
-        log.exception("could not record the bracket race %s", race_id)
+        log.exception("could not record the league race %s", race_id)

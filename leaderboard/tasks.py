@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from celery import shared_task
 
-from leaderboard import divisions, headtohead, services
+from leaderboard import divisions, racefinish, services
 
 
 @shared_task(name="leaderboard.tasks.promote_divisions")
@@ -27,4 +27,4 @@ def promote_divisions(month: str | None = None) -> dict:
 @shared_task(name="leaderboard.tasks.reconcile_submissions")
 def reconcile_submissions() -> int:
     """Results, bracket matches and race-day turns whose signal was missed."""
-    return services.submissions_reconcile() + headtohead.races_reconcile()
+    return services.submissions_reconcile() + racefinish.races_reconcile()

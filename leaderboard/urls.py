@@ -11,6 +11,7 @@
 /league/submissions/<id>/[video.mp4]       a submission's lap table and video
 /league/events/<id>/bracket/               the head-to-head bracket (seed, withdraw)
 /league/events/<id>/race-day/              the facilitator's race-day queue and controls
+/league/events/<id>/speed/                 a racer's live speed control during their turn
 /league/events/<id>/broadcast/[?watch=]    the broadcast page for a big screen
 /league/races/<id>/video.mp4               a league race's broadcast video
 Websockets: /ws/league/events/<id>/ and /ws/league/events/<id>/broadcast/ (routing.py)
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 from django.urls import path
 
-from leaderboard import raceviews, views
+from leaderboard import raceviews, speedviews, views
 
 urlpatterns = [
     path("", views.league_home, name="league"),
@@ -44,6 +45,7 @@ urlpatterns = [
     path("join/<str:token>/", views.event_join, name="league-join"),
     path("events/<int:event_id>/bracket/", raceviews.event_bracket, name="league-event-bracket"),
     path("events/<int:event_id>/race-day/", raceviews.race_day, name="league-race-day"),
+    path("events/<int:event_id>/speed/", speedviews.race_speed, name="league-race-speed"),
     path("events/<int:event_id>/broadcast/", raceviews.broadcast, name="league-broadcast"),
     path("races/<int:race_id>/video.mp4", raceviews.race_video_view, name="league-race-video"),
     path("submissions/<int:submission_id>/", views.submission_detail, name="league-submission"),

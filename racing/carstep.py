@@ -4,7 +4,10 @@
 A step (:func:`drive`) is: the physics for 1/15 s, locating the reported point (0.14 m ahead
 of the car's origin) on the centre line, counting the wheels on the track, asking the caller
 whether the car crashed, and letting the car's :class:`~racing.rules.RaceTracker` judge it
-(progress, laps, failures, penalties). After a forgiven failure (``judged.reset``) the caller
+(progress, laps, failures, penalties). A car's ``speed_multiplier`` (a race day's live speed
+control, 0.5-1.5; 1.0 everywhere else) scales the commanded speed here, for the physics only,
+clipped to the car's limits (:data:`~racing.car.MIN_SPEED`-:data:`~racing.car.MAX_SPEED`).
+After a forgiven failure (``judged.reset``) the caller
 calls :func:`respawn`, once it has read what it needs from the car where it was judged (the
 env builds DeepRacer's ``params`` there). :func:`trace_row` writes the step's sim-trace row.
 
@@ -29,7 +32,7 @@ from typing import Protocol
 import numpy as np
 
 from racing.actions import ActionSpec
-from racing.car import REPORTED_POINT_AHEAD_M, CarSim, Pose
+from racing.car import MAX_SPEED, MIN_SPEED, REPORTED_POINT_AHEAD_M, CarSim, Pose
 from racing.objects import KIND_BOT, KIND_RACER, RaceObject
 from racing.params import heading_deg
 from racing.rules import Judgement, RaceTracker, Status
@@ -55,13 +58,15 @@ class DrivenCar(Protocol):
     point: tuple[float, float]
     s: float
     hint: int | None
+    speed_multiplier: float
 
 
 @dataclass
 class CarOnTrack:
     """A car on the track between steps (:class:`racing.racecar.RaceCar` has the same fields):
     ``pose`` of its origin, ``point`` the reported point (metres), ``s`` that point along the
-    centre line (metres), ``hint`` the centre segment it was last found on."""
+    centre line (metres), ``hint`` the centre segment it was last found on;
+    ``speed_multiplier`` scales the commanded speed (:func:`drive`)."""
 
     sim: CarSim
     tracker: RaceTracker
@@ -69,16 +74,18 @@ class CarOnTrack:
     point: tuple[float, float] = (0.0, 0.0)
     s: float = 0.0
     hint: int | None = None
+    speed_multiplier: float = 1.0
 
 
 @dataclass(frozen=True)
 class Drive:
     """What one step did, read where the car was judged (before any respawn).
 
-    ``steering`` (degrees) and ``speed`` (m/s) as commanded; ``loc`` the reported point's
-    location; ``wheels`` on the track, 0-4; ``crash`` the object the car ran into (a crash by
-    the caller's rule) or ``None``; ``judged`` the tracker's judgement; ``yaw`` radians;
-    ``progress`` percent of the lap after the step.
+    ``steering`` (degrees) and ``speed`` (m/s) as commanded (the action's); ``multiplier`` the
+    car's speed multiplier this step (it drove ``speed`` × ``multiplier``, clipped); ``loc``
+    the reported point's location; ``wheels`` on the track, 0-4; ``crash`` the object the car
+    ran into (a crash by the caller's rule) or ``None``; ``judged`` the tracker's judgement;
+    ``yaw`` radians; ``progress`` percent of the lap after the step.
     """
 
     steering: float
@@ -90,6 +97,7 @@ class Drive:
     point: tuple[float, float]
     yaw: float
     progress: float
+    multiplier: float = 1.0
 
 
 def place(car: DrivenCar, track: Track, s: float, offset: float = 0.0,
@@ -116,12 +124,14 @@ def drive(
     crash: Callable[[Location], RaceObject | None],
 ) -> Drive:
     """One 1/15 s step of ``car`` on ``track`` at the commanded ``steering`` (degrees) and
-    ``speed`` (m/s). ``crash`` is asked, with the car already moved and located, what it ran
+    ``speed`` (m/s), the speed scaled by ``car.speed_multiplier`` (:func:`driven_speed`).
+    ``crash`` is asked, with the car already moved and located, what it ran
     into by the caller's rule (``None``: nothing). The caller moves its bots first."""
     old = car.point
-    # The one place where the commanded action becomes the car's motion: a speed multiplier
-    # applied to every car (a live race setting) belongs here, on ``speed`` for sim.step only.
-    car.pose = car.sim.step(steering, speed)
+    # The one place where the commanded action becomes the car's motion (RacingEnv and
+    # HeadToHeadRace alike): the multiplier scales the physics' speed only.
+    multiplier = float(car.speed_multiplier)
+    car.pose = car.sim.step(steering, driven_speed(speed, multiplier))
     car.point = car.pose.point_ahead(REPORTED_POINT_AHEAD_M)
     loc = track.locate(car.point[0], car.point[1], car.hint)
     car.hint, car.s = loc.segment, loc.s
@@ -132,7 +142,15 @@ def drive(
         s=loc.s, dt=car.sim.dt, moved_m=moved, wheels_on_track=wheels, crashed=hit is not None
     )
     return Drive(steering, speed, loc, wheels, hit, judged, car.point, car.pose.yaw,
-                 car.tracker.progress)  # fmt: skip
+                 car.tracker.progress, multiplier)  # fmt: skip
+
+
+def driven_speed(speed: float, multiplier: float) -> float:
+    """The speed the car is driven at, m/s: ``speed`` × ``multiplier`` clipped to the car's
+    limits, as DeepRacer's live speed control scaled the throttle; ``speed`` itself at 1.0."""
+    if multiplier == 1.0:
+        return speed
+    return min(MAX_SPEED, max(MIN_SPEED, speed * multiplier))
 
 
 def respawn(
@@ -166,14 +184,15 @@ def trace_row(
     episode: int,
     action: int | tuple[float, float],
     reward: float,
-    where_put: bool = False,
 ) -> TraceRow:
     """The step's sim-trace row, written after any respawn. ``X``, ``Y`` and ``yaw`` are where
-    the car was judged; with ``where_put``, where it is now (after a respawn, where it was
-    put: the head-to-head race's log has always written that). ``wall_clock`` is left 0 for
-    whoever records the row (steps stay deterministic)."""
+    the car was judged, as SimApp logs the step that ended off track or in a crash, for every
+    caller (the head-to-head race once wrote where a respawned car was put: one rule now).
+    ``throttle`` is the action's speed; the multiplier the car drove with is ``step``'s
+    (a race records it beside the trace). ``wall_clock`` is left 0 for whoever records the
+    row (steps stay deterministic)."""
     judged = step.judged
-    (x, y), yaw = (car.point, car.pose.yaw) if where_put else (step.point, step.yaw)
+    (x, y), yaw = step.point, step.yaw
     return TraceRow(
         episode=episode,
         steps=car.tracker.steps,

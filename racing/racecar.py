@@ -4,6 +4,7 @@ and sensors, its judge and its record; and the start grid."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -20,9 +21,6 @@ from racing.simtrace import TraceRow
 
 MIN_RACERS, MAX_RACERS = 1, 4
 """One car alone is a time trial with the race's broadcast (a race day's solo run)."""
-SECTORS = 3
-"""A lap is timed in three sectors, as motor racing's timing screens show it."""
-PURPLE, GREEN, YELLOW = "purple", "green", "yellow"
 GRID_SPACING_M = 0.8
 """Distance along the centre line between two grid slots, metres (two car lengths)."""
 RACER_COLOURS: tuple[tuple[int, int, int], ...] = (
@@ -55,6 +53,9 @@ class Racer:
     sensors: tuple[str, ...] = ("FRONT_FACING_CAMERA",)
     action_space: list | dict | None = None
     name: str = ""
+    speed: Callable[[float], float] | None = field(default=None, compare=False, repr=False)
+    """Live speed control (a race day's): called with the race clock (seconds) once per step
+    the car drives, before it drives; the multiplier (0.5-1.5) for that step. None: 1.0."""
 
 
 def grid_length_m(racers: int) -> float:
@@ -96,26 +97,11 @@ class RaceCar:
     hint: int | None = None
     finish_time_s: float | None = None
     rows: list[TraceRow] = field(default_factory=list)
-    sectors: list[list[float]] = field(default_factory=list)
-    """Sector times of each finished lap (:data:`SECTORS` a lap), seconds, penalties in."""
-    lap_sectors: list[float] = field(default_factory=list)
-    """Sector times of the lap being driven so far."""
-
-    def time_sectors(self, finished: LapRecord | None) -> None:
-        """After a step: close the sector the car just left, or the lap it just finished."""
-        tracker = self.tracker
-        if finished is not None:
-            times = self.lap_sectors
-            while len(times) < SECTORS - 1:  # a lap cut short of a boundary: split what is left
-                times.append(0.0)
-            times.append(max(0.0, finished.time_s - sum(times)))
-            self.sectors.append(times)
-            self.lap_sectors = []
-            return
-        done = len(self.lap_sectors)
-        if done < SECTORS - 1 and tracker.progress >= 100.0 * (done + 1) / SECTORS:
-            elapsed = tracker.sim_time - tracker.lap_start_time
-            self.lap_sectors.append(max(0.0, elapsed - sum(self.lap_sectors)))
+    speed_multiplier: float = 1.0
+    """The racer's live speed control (0.5-1.5, a race day's): the next step drives the
+    action's speed times this (:func:`racing.carstep.drive`)."""
+    speeds: list[float] = field(default_factory=list)
+    """The multiplier of each step the car drove, one per trace row (the race's trace column)."""
 
     @property
     def on_track(self) -> bool:
@@ -159,29 +145,3 @@ class RaceCar:
                 current.status = Status.TIME_UP
             laps.append(current)
         return laps
-
-
-def sector_colours(cars: list[RaceCar]) -> dict[int, list[str]]:
-    """Motor racing's colours of each car's latest sector times (its lap being driven, else its
-    last lap), by car index: ``purple`` for the session's best in that sector, ``green`` for
-    the car's own best, ``yellow`` for slower."""
-    best = [min((lap[i] for car in cars for lap in car.sectors if lap[i] > 0), default=None)
-            for i in range(SECTORS)]  # fmt: skip
-    best = [min((t for t in (b, *(c.lap_sectors[i] for c in cars if len(c.lap_sectors) > i))
-                 if t), default=None) for i, b in enumerate(best)]  # fmt: skip
-    colours: dict[int, list[str]] = {}
-    for car in cars:
-        shown = car.lap_sectors or (car.sectors[-1] if car.sectors else [])
-        history = [*car.sectors, car.lap_sectors]
-        own = [min((lap[i] for lap in history if len(lap) > i and lap[i] > 0), default=None)
-               for i in range(SECTORS)]  # fmt: skip
-        row = []
-        for i, value in enumerate(shown):
-            if value > 0 and best[i] is not None and value <= best[i] + 1e-9:
-                row.append(PURPLE)
-            elif value > 0 and own[i] is not None and value <= own[i] + 1e-9:
-                row.append(GREEN)
-            else:
-                row.append(YELLOW)
-        colours[car.index] = row
-    return colours

@@ -98,3 +98,21 @@ def to_csv(rows: list[TraceRow]) -> str:
     for row in rows:
         out.write(row.format() + "\n")
     return out.getvalue()
+
+
+SPEED_MULTIPLIER_COLUMN = "speed_multiplier"
+"""A race car's trace (:mod:`racing.headtohead`) adds this column after DeepRacer's 19: the
+live speed multiplier the car drove each step with. Readers that know only the 19 columns
+(deepracer-utils reads by header name, ``training.analysis`` by position) ignore it."""
+
+
+def with_column(csv: str, name: str, values: list[float]) -> str:
+    """``csv`` (a sim-trace: a header row, then one line per step) with a last column ``name``
+    holding ``values``, one per step (printf ``%.2f``). ValueError unless there is exactly one
+    value per step."""
+    lines = csv.rstrip("\n").split("\n")
+    if len(lines) - 1 != len(values):
+        raise ValueError(f"{len(lines) - 1} steps but {len(values)} values for {name}")
+    out = [f"{lines[0]},{name}"]
+    out.extend(f"{line},{value:.2f}" for line, value in zip(lines[1:], values, strict=True))
+    return "\n".join(out) + "\n"

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -102,3 +103,100 @@ class TopDownView:
         pts = np.round(pix * 16).astype(np.int32)
         cv2.fillConvexPoly(img, pts[:4], rgb, cv2.LINE_AA, 4)
         cv2.fillConvexPoly(img, pts[[0, 4, 1]], (250, 250, 250), cv2.LINE_AA, 4)
+
+
+TV_MOUNT = CameraMount(
+    forward=-1.5, height=0.95, pitch_deg=27.0, hfov_deg=68.0, width=1280, height_px=720
+)
+"""The broadcast's TV camera: 1.5 m behind and 0.95 m above the followed car."""
+TV_WIDE_MOUNT = CameraMount(
+    forward=-2.4, height=1.9, pitch_deg=36.0, hfov_deg=72.0, width=1280, height_px=720
+)
+"""Its wide shot (an incident): further back and higher, to see what is round the car."""
+SKY_TOP_RGB, SKY_BOTTOM_RGB = (20, 28, 46), (58, 72, 96)
+
+
+class TVCamera:
+    """The broadcast's camera: behind and above a car, RGB, every car and bot drawn.
+
+    It follows the car's heading smoothly (a low-pass on the yaw, so a weaving car does not
+    shake the picture) and jumps at a cut (:meth:`cut`). ``mounts`` maps a shot's camera
+    (``chase``, ``wide``) to where the camera sits; the picture's size is the mounts'."""
+
+    def __init__(self, ground_rgb: GroundTexture, *, width: int = 1280, height: int = 720,
+                 smoothing: float = 0.3) -> None:  # fmt: skip
+        self.cameras: dict[str, PinholeCamera] = {}
+        for name, mount in (("chase", TV_MOUNT), ("wide", TV_WIDE_MOUNT)):
+            camera = PinholeCamera(ground_rgb, replace(mount, width=width, height_px=height))
+            camera._frame = _sky(height, width, camera.first_ground_row)
+            self.cameras[name] = camera
+        self.smoothing = smoothing
+        self._yaw: float | None = None
+
+    def cut(self) -> None:
+        """The next frame frames its car afresh (no smoothing across a cut)."""
+        self._yaw = None
+
+    def render(self, pose: Pose, objects: Sequence[RaceObject] = (),
+               camera: str = "chase") -> np.ndarray:  # fmt: skip
+        """The picture behind the car at ``pose``, ``(height, width, 3)`` RGB."""
+        if self._yaw is None:
+            self._yaw = pose.yaw
+        else:  # turn a share of the way toward the car's heading, the short way round
+            turn = math.remainder(pose.yaw - self._yaw, math.tau)
+            self._yaw += self.smoothing * turn
+        cam = self.cameras.get(camera, self.cameras["chase"])
+        return cam.render(Pose(pose.x, pose.y, self._yaw), objects)
+
+
+def _sky(height: int, width: int, horizon: int) -> np.ndarray:
+    """A dusk-blue gradient down to the horizon row (drawn once; a frame copies it)."""
+    rows = max(1, min(height, horizon + 2))
+    ramp = np.linspace(0.0, 1.0, rows)[:, None]
+    top, bottom = np.array(SKY_TOP_RGB, float), np.array(SKY_BOTTOM_RGB, float)
+    colours = (top * (1 - ramp) + bottom * ramp).astype(np.uint8)
+    img = np.empty((height, width, 3), np.uint8)
+    img[:] = SKY_BOTTOM_RGB
+    img[:rows] = colours[:, None, :]
+    return img
+
+
+class TrackMap:
+    """A small map of the whole track with each car and bot as a coloured dot, RGB, on a dark
+    translucent-looking panel ``width_px`` wide."""
+
+    def __init__(self, ground_rgb: GroundTexture, width_px: int = 300, pad: int = 8) -> None:
+        self.view = TopDownView(ground_rgb, width_px=width_px - 2 * pad)
+        h, w = self.view.base.shape[:2]
+        self.pad = pad
+        self.base = np.empty((h + 2 * pad, w + 2 * pad, 3), np.uint8)
+        self.base[:] = (14, 16, 22)
+        dimmed = (self.view.base.astype(np.uint16) * 3 // 4).astype(np.uint8)
+        self.base[pad : pad + h, pad : pad + w] = dimmed
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.base.shape[:2]
+
+    def render(
+        self,
+        cars: Sequence[tuple[float, float, tuple[int, int, int]]],
+        bots: Sequence[RaceObject] = (),
+        highlight: int | None = None,
+    ) -> np.ndarray:
+        """The map with a dot at each ``(x, y, rgb)`` car (``highlight``: the index of the
+        car the camera follows, ringed) and a small grey dot at each bot."""
+        img = self.base.copy()
+        scale, pad = self.view.scale, self.pad
+        to_px = self.view.ground.to_pixels
+        for bot in bots:
+            px, py = to_px(np.array([[bot.x, bot.y]]))[0] * scale + pad
+            cv2.circle(img, (int(px), int(py)), 4, (170, 170, 178), -1, cv2.LINE_AA)
+        for i, (x, y, rgb) in enumerate(cars):
+            px, py = to_px(np.array([[x, y]]))[0] * scale + pad
+            centre = (int(round(px)), int(round(py)))
+            if i == highlight:
+                cv2.circle(img, centre, 11, (255, 255, 255), 2, cv2.LINE_AA)
+            cv2.circle(img, centre, 7, tuple(int(c) for c in rgb), -1, cv2.LINE_AA)
+            cv2.circle(img, centre, 7, (20, 20, 20), 1, cv2.LINE_AA)
+        return img

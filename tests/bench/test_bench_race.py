@@ -39,10 +39,10 @@ def test_a_viewer_that_got_nothing_has_one_gap_the_whole_window(bench) -> None:
 
 
 def test_the_race_clock_is_read_off_a_frame_message(bench) -> None:
-    from training.worker.racelive import frame_payload
+    from racing.framecodec import encode_frame
 
     timing = {"clock_s": 12.47, "laps": 10, "over": False, "cars": []}
-    payload = frame_payload(b"\xff\xd8" + b"J" * 50_000, timing, 1_700_000_000.0)
+    payload = encode_frame({"timing": timing, "t": 1_700_000_000.0}, b"\xff\xd8" + b"J" * 50_000)
     assert bench.race_clock(payload) == pytest.approx(12.47)
     assert bench.race_clock(b"\x00\x00\x00\x09not json!") is None
     assert bench.race_clock(b"") is None
@@ -70,6 +70,7 @@ def test_the_last_line_has_the_issue_s_keys_and_the_ratio_to_the_unpaced_race(be
     assert values["sim_steps_per_s"] == "90.0"
     assert values["ratio"] == "4.00"  # 40 ms of CPU a step live, 10 ms unpaced
     assert values["spectators"] == "3/4" and values["seeds"] == "1"
+    assert values["retried"] == "0"  # viewers that connected only after a failed try
 
 
 @pytest.mark.slow

@@ -1,4 +1,4 @@
-"""leaderboard.bracket: seeding, byes, running brackets to a champion, JSON storage (pure)."""
+"""leaderboard.bracket_draw: seeding, byes, running brackets to a champion, JSON storage (pure)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import pytest
 
-from leaderboard.bracket import (
+from leaderboard.bracket_draw import (
     Bracket,
     Match,
     bracket_size,

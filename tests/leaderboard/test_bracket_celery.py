@@ -16,8 +16,8 @@ import pytest
 import torch
 from league_helpers import make_event, make_user
 
-from leaderboard import headtohead
-from leaderboard.bracket import Bracket, champion
+from leaderboard import bracket as league_bracket
+from leaderboard.bracket_draw import champion
 from leaderboard.models import BracketMatch, Event, Submission
 from tests.support import constant
 from training import services
@@ -70,15 +70,15 @@ def test_a_bracket_runs_to_its_champion_on_a_celery_worker(celery_worker):
     # without penalties, so each match's video is a third of the frames it is at 2 m/s).
     subs = [qualifier(event, rank, 4.0 - 0.1 * rank) for rank in range(ENTRIES)]
     started = time.monotonic()
-    headtohead.bracket_seed(event=event, user=fran)
+    league_bracket.bracket_seed(event=event, user=fran)
     deadline = started + 240 * ENTRIES
     while time.monotonic() < deadline:
         event.refresh_from_db()
-        if champion(Bracket.from_dict(event.bracket["bracket"])) is not None:
+        if champion(league_bracket.bracket_state(event).draw) is not None:
             break
         time.sleep(1.0)
     wall_s = time.monotonic() - started
-    bracket = Bracket.from_dict(event.bracket["bracket"])
+    bracket = league_bracket.bracket_state(event).draw
     assert champion(bracket) is not None, "the bracket did not finish"
     matches = list(BracketMatch.objects.filter(event=event).select_related("race"))
     raced = [m for m in matches if m.race_id]

@@ -1,4 +1,4 @@
-"""Head-to-head events (leaderboard/headtohead.py): brackets seeded from qualifying, matches as
+"""Head-to-head events (leaderboard/bracket.py): brackets seeded from qualifying, matches as
 race jobs of frozen entries, winners going through as races end, failures and withdrawals that
 never leave a bracket stuck. Races are "run" here by writing their results as the race worker
 would (the races themselves are covered by tests/training). Fran runs the event."""
@@ -8,9 +8,9 @@ from __future__ import annotations
 import pytest
 from league_helpers import make_event, make_model, make_user
 
-from leaderboard import headtohead
+from leaderboard import bracket as league_bracket
 from leaderboard.access import LeagueError
-from leaderboard.bracket import champion
+from leaderboard.bracket_draw import champion
 from leaderboard.models import BracketMatch, Event, Notification, Submission
 from training.models import JobStatus, RaceJob
 
@@ -50,7 +50,7 @@ def finish(race: RaceJob, winner_sub: Submission | None, *, finished: bool = Tru
     RaceJob.objects.filter(pk=race.pk).update(
         status=JobStatus.COMPLETED, results={"winner": winner, "cars": cars}
     )
-    headtohead.bracket_race_finished(race_id=race.pk)
+    league_bracket.bracket_race_finished(race_id=race.pk)
 
 
 def pairs(event: Event, round_number: int) -> list[tuple[int, int]]:
@@ -74,7 +74,7 @@ def test_the_bracket_is_seeded_from_qualifying_with_byes_to_the_top_seeds(
 ):
     event = h2h_event(fran, size=16 if entries > 8 else 8)
     qualified(event, entries)
-    bracket = headtohead.bracket_seed(event=event, user=fran)
+    bracket = league_bracket.bracket_seed(event=event, user=fran)
     event.refresh_from_db()
     assert bracket.entries == entries
     assert sorted(pairs(event, 1)) == sorted(first_round)
@@ -89,7 +89,7 @@ def test_the_bracket_is_seeded_from_qualifying_with_byes_to_the_top_seeds(
 def test_winners_go_through_until_a_champion_is_left(fran):
     event = h2h_event(fran)
     subs = qualified(event, 5)  # seeds 1-3 have byes, 4 v 5 races first
-    headtohead.bracket_seed(event=event, user=fran)
+    league_bracket.bracket_seed(event=event, user=fran)
     event.refresh_from_db()
     played = 0
     for _ in range(10):
@@ -104,9 +104,7 @@ def test_winners_go_through_until_a_champion_is_left(fran):
             played += 1
             event.refresh_from_db()
     event.refresh_from_db()
-    from leaderboard.bracket import Bracket
-
-    bracket = Bracket.from_dict(event.bracket["bracket"])
+    bracket = league_bracket.bracket_state(event).draw
     assert played == 4  # five entries: four races
     assert champion(bracket) == 5
     assert Notification.objects.filter(user=subs[4].racer, message__contains="won").exists()
@@ -115,15 +113,15 @@ def test_winners_go_through_until_a_champion_is_left(fran):
 def test_a_failed_race_is_run_again_once_then_the_better_seed_goes_through(fran):
     event = h2h_event(fran)
     qualified(event, 2)
-    headtohead.bracket_seed(event=event, user=fran)
+    league_bracket.bracket_seed(event=event, user=fran)
     match = BracketMatch.objects.get(event=event)
     first = match.race
     RaceJob.objects.filter(pk=first.pk).update(status=JobStatus.FAILED, error="worker lost")
-    headtohead.bracket_race_finished(race_id=first.pk)
+    league_bracket.bracket_race_finished(race_id=first.pk)
     match.refresh_from_db()
     assert match.winner_id is None and match.race_id != first.pk and match.attempts == 2
     RaceJob.objects.filter(pk=match.race_id).update(status=JobStatus.FAILED, error="again")
-    headtohead.bracket_race_finished(race_id=match.race_id)
+    league_bracket.bracket_race_finished(race_id=match.race_id)
     match.refresh_from_db()
     assert match.winner_id == match.top_id
     assert "could not be run" in match.note
@@ -132,7 +130,7 @@ def test_a_failed_race_is_run_again_once_then_the_better_seed_goes_through(fran)
 def test_a_race_nobody_moved_in_goes_to_the_better_seed(fran):
     event = h2h_event(fran)
     qualified(event, 2)
-    headtohead.bracket_seed(event=event, user=fran)
+    league_bracket.bracket_seed(event=event, user=fran)
     match = BracketMatch.objects.get(event=event)
     finish(match.race, None, finished=False)
     match.refresh_from_db()
@@ -142,9 +140,9 @@ def test_a_race_nobody_moved_in_goes_to_the_better_seed(fran):
 def test_a_withdrawn_racer_is_out_of_their_queued_race_and_their_next_match(fran):
     event = h2h_event(fran)
     subs = qualified(event, 3)  # 1 has a bye to the final; 2 v 3 races
-    headtohead.bracket_seed(event=event, user=fran)
+    league_bracket.bracket_seed(event=event, user=fran)
     match = BracketMatch.objects.get(event=event, round=1)
-    headtohead.bracket_withdraw(event=event, user=subs[2].racer, submission=subs[2])
+    league_bracket.bracket_withdraw(event=event, user=subs[2].racer, submission=subs[2])
     race = RaceJob.objects.get(pk=match.race_id)
     out = next(e for e in race.entries if e["tag"] == subs[2].pk)
     assert out["withdrawn"] == "its racer withdrew"
@@ -152,7 +150,7 @@ def test_a_withdrawn_racer_is_out_of_their_queued_race_and_their_next_match(fran
     # The final: seed 1 against seed 2; seed 1 withdraws before it is raced.
     final = BracketMatch.objects.get(event=event, round=2)
     RaceJob.objects.filter(pk=final.race_id).update(status=JobStatus.IN_PROGRESS)
-    headtohead.bracket_withdraw(event=event, user=fran, submission=subs[0])
+    league_bracket.bracket_withdraw(event=event, user=fran, submission=subs[0])
     final.refresh_from_db()
     assert final.winner_id is None  # a race already on track is run to its end
     finish(final.race, subs[1])
@@ -163,8 +161,9 @@ def test_a_withdrawn_racer_is_out_of_their_queued_race_and_their_next_match(fran
 def test_a_match_against_a_racer_who_withdrew_earlier_is_decided_without_a_race(fran):
     event = h2h_event(fran)
     subs = qualified(event, 3)
-    headtohead.bracket_seed(event=event, user=fran)
-    headtohead.bracket_withdraw(event=event, user=fran, submission=subs[0])  # seed 1, in the final
+    league_bracket.bracket_seed(event=event, user=fran)
+    # seed 1, in the final
+    league_bracket.bracket_withdraw(event=event, user=fran, submission=subs[0])
     finish(BracketMatch.objects.get(event=event, round=1).race, subs[2])
     final = BracketMatch.objects.get(event=event, round=2)
     assert final.winner_id == subs[2].pk and final.race_id is None
@@ -175,22 +174,22 @@ def test_only_the_organiser_or_a_facilitator_seeds_and_racers_withdraw_only_them
     event = h2h_event(fran)
     subs = qualified(event, 4)
     with pytest.raises(LeagueError, match="organiser or a race facilitator"):
-        headtohead.bracket_seed(event=event, user=alice)
-    headtohead.bracket_seed(event=event, user=fran)
+        league_bracket.bracket_seed(event=event, user=alice)
+    league_bracket.bracket_seed(event=event, user=fran)
     with pytest.raises(LeagueError, match="already seeded"):
-        headtohead.bracket_seed(event=event, user=fran)
+        league_bracket.bracket_seed(event=event, user=fran)
     with pytest.raises(LeagueError, match="only the racer"):
-        headtohead.bracket_withdraw(event=event, user=subs[1].racer, submission=subs[2])
+        league_bracket.bracket_withdraw(event=event, user=subs[1].racer, submission=subs[2])
 
 
 def test_a_bracket_needs_two_qualifiers_and_a_size(fran):
     event = h2h_event(fran)
     qualified(event, 1)
     with pytest.raises(LeagueError, match="at least two ranked qualifiers"):
-        headtohead.bracket_seed(event=event, user=fran)
+        league_bracket.bracket_seed(event=event, user=fran)
     plain = make_event(fran, name="No bracket")
     with pytest.raises(LeagueError, match="has no bracket"):
-        headtohead.bracket_seed(event=plain, user=fran)
+        league_bracket.bracket_seed(event=plain, user=fran)
 
 
 def test_a_deleted_model_still_races_from_its_frozen_entry(fran):
@@ -198,7 +197,7 @@ def test_a_deleted_model_still_races_from_its_frozen_entry(fran):
     subs = qualified(event, 2)
     model_id = subs[1].model_id
     subs[1].model.delete()
-    headtohead.bracket_seed(event=event, user=fran)
+    league_bracket.bracket_seed(event=event, user=fran)
     race = BracketMatch.objects.get(event=event).race
     assert model_id in race.model_ids
 
@@ -230,18 +229,18 @@ def test_race_day_matches_wait_in_the_queue_and_a_failed_one_joins_it_again(fran
 
     event = h2h_event(fran, bracket_on_race_day=True)
     subs = qualified(event, 3)  # seed 1 waits in the final; 2 v 3 joins the queue
-    headtohead.bracket_seed(event=event, user=fran)
+    league_bracket.bracket_seed(event=event, user=fran)
     match = BracketMatch.objects.get(event=event, round=1)
     assert match.race_id is None and RaceJob.objects.count() == 0
     slot = raceday.race_day_launch(event=event, user=fran)
     assert slot.match == match and slot.race.paced
     RaceJob.objects.filter(pk=slot.race_id).update(status=JobStatus.FAILED, error="lost")
     raceday.race_day_race_finished(race_id=slot.race_id)  # the order of the league's signal
-    headtohead.bracket_race_finished(race_id=slot.race_id)
+    league_bracket.bracket_race_finished(race_id=slot.race_id)
     again = RaceDaySlot.objects.get(match=match, status=RaceDaySlot.Status.WAITING)
     assert again.pk != slot.pk
     # While it waits, seed 3 withdraws: the match is decided and the queue skips it.
-    headtohead.bracket_withdraw(event=event, user=fran, submission=subs[2])
+    league_bracket.bracket_withdraw(event=event, user=fran, submission=subs[2])
     match.refresh_from_db()
     assert match.winner_id == subs[1].pk
     final = raceday.race_day_launch(event=event, user=fran)
@@ -255,7 +254,7 @@ def test_a_missed_race_signal_is_caught_up_by_the_reconcile_task(fran):
 
     event = h2h_event(fran)
     subs = qualified(event, 2)
-    headtohead.bracket_seed(event=event, user=fran)
+    league_bracket.bracket_seed(event=event, user=fran)
     match = BracketMatch.objects.get(event=event)
     race = match.race
     RaceJob.objects.filter(pk=race.pk).update(  # ended, but nobody heard of it

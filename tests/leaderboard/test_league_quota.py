@@ -16,9 +16,9 @@ from django.db import connection
 from django.utils import timezone
 from league_helpers import finish_evaluation, lap, make_event, make_model, make_user
 
-from leaderboard import events, headtohead, raceday
+from leaderboard import bracket, events, raceday, racefinish
 from leaderboard.access import LeagueError
-from leaderboard.headtohead import QUOTA_WAIT_NOTE, LeagueQuotaError
+from leaderboard.bracket import QUOTA_WAIT_NOTE, LeagueQuotaError
 from leaderboard.models import BracketMatch, Event, RaceDaySlot, Submission
 from leaderboard.services import submission_create
 from training.models import ACTIVE_JOB_STATUSES, EvaluationJob, JobStatus, RaceJob, TrainingJob
@@ -119,7 +119,7 @@ def test_a_bracket_held_back_by_the_quota_waits_and_starts_when_a_job_finishes(q
         ranked_entry(event, make_user(f"racer{i}", alias=f"Racer-{i}"), f"q{i}",
                      score_ms=30_000 + 100 * i)  # fmt: skip
     own = evaluation_start(model=make_model(alice, "own"), user=alice)  # one job of her own
-    headtohead.bracket_seed(event=event, user=alice)
+    bracket.bracket_seed(event=event, user=alice)
     matches = BracketMatch.objects.filter(event=event, round=1)
     assert matches.count() == 4
     assert matches.filter(race__isnull=False).count() == 1 and active_jobs_of(alice) == 2
@@ -131,17 +131,17 @@ def test_a_bracket_held_back_by_the_quota_waits_and_starts_when_a_job_finishes(q
     race = matches.get(race__isnull=False).race
     RaceJob.objects.filter(pk=race.pk).update(status=JobStatus.COMPLETED,
                                               results={"winner": None, "cars": []})  # fmt: skip
-    headtohead.bracket_race_finished(race_id=race.pk)
+    bracket.bracket_race_finished(race_id=race.pk)
     assert matches.filter(winner__isnull=False).count() == 1
     assert matches.filter(race__isnull=False).count() == 2 and active_jobs_of(alice) == 2
 
     # Her own evaluation ends (no bracket signal): the minute's reconcile starts the next one.
     finish_evaluation(own, [lap(30.0)])
-    assert headtohead.races_reconcile() == 1
+    assert racefinish.races_reconcile() == 1
     assert matches.filter(race__isnull=False).count() == 3 and active_jobs_of(alice) == 2
     started = matches.filter(race__isnull=False, winner__isnull=True)
     assert list(started.values_list("note", flat=True)) == ["", ""]  # the wait note cleared
-    assert headtohead.races_reconcile() == 0  # full again: the last match still waits
+    assert racefinish.races_reconcile() == 0  # full again: the last match still waits
     assert matches.get(race__isnull=True).note == QUOTA_WAIT_NOTE
 
 

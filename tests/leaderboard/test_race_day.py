@@ -21,9 +21,9 @@ from leaderboard.access import LeagueError
 from leaderboard.live import broadcast_group
 from leaderboard.models import Notification, RaceDaySlot, Submission
 from leaderboard.routing import websocket_urlpatterns
+from racing.framecodec import decode_frame, encode_frame
 from training import live
 from training.models import JobStatus, RaceJob
-from training.worker.racelive import frame_payload, read_frame_payload
 
 pytestmark = pytest.mark.django_db
 
@@ -168,20 +168,26 @@ def test_the_broadcast_socket_relays_frames_to_spectators_with_the_link(fran):
                 break
             await asyncio.sleep(0.05)
         now = time.time()
-        await publisher.publish(channel, frame_payload(b"old-jpeg", timing, now - 5))
-        await publisher.publish(channel, frame_payload(b"\xff\xd8jpeg", timing, now))
+        await publisher.publish(channel, b"\x00\x00\x00\x05{nope")  # unreadable: dropped
+        # Built 5 s ago: still shown unless a newer one replaced it (never none on a slow box).
+        await publisher.publish(channel, encode_frame({"timing": timing, "t": now - 5}, b"old"))
+        fresh = encode_frame({"timing": timing, "t": now}, b"\xff\xd8jpeg")
+        await publisher.publish(channel, fresh)
         await publisher.aclose()
-        frame = await viewer.receive_from(timeout=10)
+        frames = [await viewer.receive_from(timeout=10)]
+        while frames[-1] != fresh and len(frames) < 2:
+            frames.append(await viewer.receive_from(timeout=10))
         await layer.group_send(
             broadcast_group(event.pk), {"type": "raceday.status", "over": True, "winner": "Ada"}
         )
         status = await viewer.receive_json_from(timeout=10)
         await viewer.disconnect()
-        return refused, code, ok, frame, status
+        return refused, code, ok, frames, status
 
-    refused, code, ok, frame, status = async_to_sync(scenario)()
+    refused, code, ok, frames, status = async_to_sync(scenario)()
     assert not refused and code == 4404
-    header, jpeg = read_frame_payload(frame)  # the stale frame was dropped, the fresh one sent
+    assert [decode_frame(f)[1] for f in frames[:-1]] in ([], [b"old"])  # the unreadable: never
+    header, jpeg = decode_frame(frames[-1])  # the newest frame always reaches the viewer
     assert ok and jpeg == b"\xff\xd8jpeg"
     assert header["timing"] == {"clock_s": 1.0, "laps": 2, "over": False, "cars": []}
     assert status == {"type": "status", "over": True, "winner": "Ada"}

@@ -121,7 +121,13 @@ def test_a_facilitator_runs_a_race_day_on_the_broadcast_page(browser, daphne, ce
         screen.wait_for_selector("[data-timing] .bc-s.purple", timeout=RACE_S)
         shot(screen, f"broadcast-race-{turn}")
         screen.wait_for_selector("[data-winner]:not([hidden])", timeout=RACE_S)
-        slot = RaceDaySlot.objects.select_related("race").get(race__title=title)
+        # The winner shows from the race's last frame (its timing); the job's results land
+        # just after it.
+        for _ in range(RACE_S // 100):
+            slot = RaceDaySlot.objects.select_related("race").get(race__title=title)
+            if slot.status != RaceDaySlot.Status.RUNNING:
+                break
+            screen.wait_for_timeout(100)
         assert slot.status == RaceDaySlot.Status.DONE
         results = slot.race.results
         winner = next(c for c in results["cars"] if c["model"] == results["winner"])

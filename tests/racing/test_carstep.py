@@ -9,7 +9,7 @@ import pytest
 
 from racing import carstep
 from racing.actions import ActionSpec
-from racing.car import CarSim
+from racing.car import MAX_SPEED, MIN_SPEED, CarSim
 from racing.carstep import CarOnTrack
 from racing.controllers import PurePursuitDriver
 from racing.env import RacingEnv
@@ -64,8 +64,9 @@ def test_the_env_and_a_one_car_race_drive_the_same_car_identically(oval):
         assert outcome is not None and outcome.status.value == info["status"]
         env_row, race_row = info["trace"], outcome.trace
         assert [getattr(env_row, f) for f in SAME] == [getattr(race_row, f) for f in SAME]
-        if not info["reset"]:  # a respawn row: where judged (env) or where put (race)
-            assert (env_row.x, env_row.y, env_row.yaw) == (race_row.x, race_row.y, race_row.yaw)
+        # One rule for a respawn's row too: where the car was judged, on both paths.
+        assert (env_row.x, env_row.y, env_row.yaw) == (race_row.x, race_row.y, race_row.yaw)
+    assert race.cars[0].speeds == [1.0] * len(outcomes)
 
 
 def test_an_off_track_reset_puts_the_car_at_rest_on_the_nearer_lane_at_the_same_point(oval):
@@ -129,3 +130,62 @@ def test_the_trace_action_is_the_index_or_the_rounded_pair():
     assert carstep.trace_action(discrete, 3, (0.0, 1.0)) == 3
     pair = carstep.trace_action(continuous, None, (12.345678, math.pi))
     assert pair == (12.3457, 3.1416)
+
+
+def straight_run(oval, multiplier: float, *, race: bool, steps: int = 24) -> tuple[float, float]:
+    """Metres along the centre line that a car covers in ``steps`` steps straight ahead from
+    the start line at 1 m/s commanded (the oval's straight), and its speed then (m/s), with
+    ``multiplier`` set before the first step (a race's car, or a car stepped on its own
+    through :func:`carstep.drive`, as RacingEnv steps it)."""
+    if race:
+        contest = HeadToHeadRace(oval, [Racer(action_space=CONTINUOUS)], rules=RULES)
+        contest.reset()
+        car = contest.cars[0]
+        car.speed_multiplier = multiplier
+        start = car.s
+        for _ in range(steps):
+            contest.step([np.asarray([0.0, 1.0], dtype=np.float32)])
+        assert car.speeds == [multiplier] * steps  # recorded, one per trace row
+        contest.close()
+        return car.s - start, car.pose.speed
+    car = CarOnTrack(CarSim(), RaceTracker(RULES, oval.length, closed=True))
+    carstep.place(car, oval, 0.0)
+    car.tracker.start(car.s)
+    car.speed_multiplier = multiplier
+    start = car.s
+    for _ in range(steps):
+        step = carstep.drive(car, oval, 0.0, 1.0, lambda loc: None)
+        assert step.speed == 1.0 and step.multiplier == multiplier  # the action, the multiplier
+    car.sim.close()
+    return car.s - start, car.pose.speed
+
+
+@pytest.mark.parametrize("race", [True, False], ids=["race", "env-step"])
+def test_the_speed_multiplier_scales_the_cars_speed_on_a_straight(oval, race):
+    (slow, v_slow), (normal, v_normal), (fast, v_fast) = (
+        straight_run(oval, m, race=race) for m in (0.5, 1.0, 1.5)
+    )
+    assert (v_slow, v_normal, v_fast) == pytest.approx((0.5, 1.0, 1.5), abs=0.03)
+    # 1.6 s at 0.5, 1 and 1.5 m/s: the distances scale with the multiplier (less the start).
+    assert 0.0 < slow < normal < fast
+    assert slow / normal == pytest.approx(0.5, abs=0.07)
+    assert fast / normal == pytest.approx(1.5, abs=0.1)
+
+
+def test_the_driven_speed_is_clipped_to_the_cars_limits():
+    assert carstep.driven_speed(2.0, 1.0) == 2.0
+    assert carstep.driven_speed(2.0, 1.5) == pytest.approx(3.0)
+    assert carstep.driven_speed(3.5, 1.5) == MAX_SPEED
+    assert carstep.driven_speed(0.15, 0.5) == MIN_SPEED
+
+
+def test_the_race_step_is_the_one_step():
+    """No copy of the step is left in the race: it drives, respawns and traces through
+    carstep (the module names no physics of its own)."""
+    import inspect
+
+    from racing import headtohead
+
+    source = inspect.getsource(headtohead)
+    for copied in ("sim.step(", "wheel_contacts", "tracker.update(", "closest_waypoints("):
+        assert copied not in source

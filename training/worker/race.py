@@ -12,12 +12,16 @@ imported one synced from the database first)."""
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 from django.utils import timezone
 
+from racing.conditions import Conditions
 from racing.headtohead import Racer
 from racing.race import RaceConfig
+from racing.simtrace import SPEED_MULTIPLIER_COLUMN, with_column
 from racing.track import Track
 from training import live, services
 from training.interchange.layout import RaceKeys, evaluation_stamp
@@ -28,11 +32,13 @@ from training.rl.evaluation import sb3_policy
 from training.rl.metadata import MetadataError, ModelMetadata
 from training.rl.race import RaceEntry, RaceReport, RaceSettings, run_race
 from training.services import model_metadata, track_catalog, tracks_sync_for
+from training.services.challenges import CHALLENGE
+from training.services.race_control import RaceSpeeds
 from training.services.races import race_conditions_of
 from training.storage import StoreError
 from training.store import get_store, keys_for
 from training.worker.common import Heartbeat, StopFlag, csv_text, fail_with
-from training.worker.racelive import RaceBroadcast
+from training.worker.racelive import FRAME_S, RaceBroadcast
 
 CLEAR_ERRORS = (StoreError,)
 
@@ -105,12 +111,20 @@ def race_models(
     return run_race(entries, track, settings, race=race, title=title, **hooks)
 
 
-def run_race_job(race_id: int, worker: str = "", *, paced: bool = False) -> str:
+def race_world(job: RaceJob) -> Conditions | None:
+    """The outside-world conditions of a race job's cameras (a league event's draw), or None:
+    the clean world."""
+    return Conditions.from_dict(job.conditions) if job.conditions else None
+
+
+def run_race_job(race_id: int, worker: str = "", *, paced: bool = False, task_id: str = "") -> str:
     """Claim and run race job ``race_id``: the results on the job, the broadcast MP4 and each
     car's sim-trace in the store, live frames and timing to the race's group while anyone
-    watches (``paced``: at real time, for a live race day). Returns ``"completed"``,
-    ``"failed"``, ``"skipped"`` or ``"superseded"``."""
-    job = services.job_claim(job_model=RaceJob, job_id=race_id, worker=worker)
+    watches (``paced``: at real time, for a live race day). ``task_id``: the Celery task, a
+    token of the fair order (the fairest queued race runs, see
+    :mod:`training.services.job_queue`); "" claims ``race_id`` itself. Returns
+    ``"completed"``, ``"failed"``, ``"skipped"`` or ``"superseded"``."""
+    job = services.job_claim(job_model=RaceJob, job_id=race_id, worker=worker, task_id=task_id)
     if job is None:
         return "skipped"
     set_torch_threads(1)
@@ -118,20 +132,29 @@ def run_race_job(race_id: int, worker: str = "", *, paced: bool = False) -> str:
         live.job_group("race", job.pk),
         *([job.broadcast_group] if job.broadcast_group else []),
     ]
-    broadcast = RaceBroadcast(groups, paced=paced or job.paced)
+    # ``paced`` was asked for the task's own race; a token may have brought another one.
+    broadcast = RaceBroadcast(groups, paced=(paced and job.pk == race_id) or job.paced)
+    on_frame = broadcast.frame
+    if watched_at_real_time(job) and not broadcast.paced:
+        on_frame = WatchedPace(lambda: live.is_watched(groups[0]), broadcast.frame).frame
     store, keys = get_store(), RaceKeys(job.pk)
     try:
         entries = job_entries(job)
         track = race_track(job.track_id, job.direction)
         race, settings = race_conditions_of(job)
         services.job_begin(job=job)
+        speeds = RaceSpeeds(job.pk, len(entries))
+        live_speed_control(entries, speeds)
         with Heartbeat(RaceJob, job.pk):
             report = run_race(entries, track, settings, race=race, title=job.title,
-                              should_stop=StopFlag(job), on_frame=broadcast.frame)  # fmt: skip
+                              should_stop=StopFlag(job), on_frame=on_frame,
+                              conditions=race_world(job))  # fmt: skip
         stamp = evaluation_stamp(job.started_at or timezone.now())
         metadata = {entry.key: entry.metadata for entry in entries}
+        index_of = {entry.key: i for i, entry in enumerate(entries)}
         for car in report.cars:
-            store.put_bytes(keys.car_simtrace(int(car.key), stamp), csv_text(car.rows).encode(),
+            store.put_bytes(keys.car_simtrace(int(car.key), stamp),
+                            speed_trace(csv_text(car.rows), speeds, index_of[car.key]).encode(),
                             "text/csv")  # fmt: skip
             if metadata.get(car.key):
                 data = json.dumps(metadata[car.key]).encode()
@@ -149,6 +172,64 @@ def run_race_job(race_id: int, worker: str = "", *, paced: bool = False) -> str:
         message = {"type": "job.status", "status": "COMPLETED", "results": report.to_json()}
         live.send(live.job_group("race", job.pk), message)
     return "completed" if completed else "superseded"
+
+
+def watched_at_real_time(job: RaceJob) -> bool:
+    """A racer's race from the Races page runs at real time while its racer watches it live
+    (and at full speed otherwise: the slot is free sooner). A race day's races (``paced``)
+    always run at real time. The race itself (its results, replay and sim-traces) is the
+    same either way: pacing only waits between steps."""
+    return job.purpose == CHALLENGE and not job.paced
+
+
+class WatchedPace:
+    """An ``on_frame`` that holds the race to real time (one frame of race clock,
+    :data:`~training.worker.racelive.FRAME_S`, per FRAME_S of wall time) while ``watched()``
+    says someone watches, asked at most every ``check_s`` seconds of wall time, then hands the
+    frame on to ``send``. Behind, it never races to catch up; unwatched, it never waits."""
+
+    def __init__(self, watched: Callable[[], bool], send: Callable[[object, dict], None], *,
+                 check_s: float = 1.0, clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:  # fmt: skip
+        self.watched, self.send, self.check_s = watched, send, check_s
+        self.clock, self.sleep = clock, sleep
+        self._checked: float | None = None
+        self._watching = False
+        self._next: float | None = None
+        self.waited_s = 0.0
+
+    def frame(self, rgb: object, header: dict) -> None:
+        now = self.clock()
+        if self._checked is None or now - self._checked >= self.check_s:
+            self._checked, self._watching = now, bool(self.watched())
+        if not self._watching:
+            self._next = None
+        else:
+            self._next = now if self._next is None else self._next + FRAME_S
+            wait = self._next - now
+            if wait > 0:
+                self.sleep(wait)
+                self.waited_s += wait
+            else:
+                self._next = now  # behind: never race to catch up
+        self.send(rgb, header)
+
+
+def live_speed_control(entries: list[RaceEntry], speeds: RaceSpeeds) -> None:
+    """Give each car the race's live speed control: its racer reads its multiplier once per
+    step it drives (:class:`~training.services.race_control.RaceSpeeds`: from a copy that one
+    Redis ``MGET`` refreshes at most every 0.2 s of race clock)."""
+    for index, entry in enumerate(entries):
+        if entry.racer is not None:
+            entry.racer = replace(entry.racer, speed=speeds.reader(index))
+
+
+def speed_trace(csv: str, speeds: RaceSpeeds, index: int) -> str:
+    """A car's sim-trace with the multiplier of each step it drove as a last column."""
+    try:
+        return with_column(csv, SPEED_MULTIPLIER_COLUMN, speeds.log[index])
+    except ValueError:  # rows dropped as malformed: the trace as it is, never misaligned
+        return csv
 
 
 __all__ = ["job_entries", "model_metadata", "race_entry", "race_models", "run_race_job"]

@@ -115,7 +115,7 @@ def test_the_command_line_runs_its_own_job_whatever_waits_before_it():
     assert taken.pk == mine.pk
 
 
-def test_evaluations_are_fair_and_races_keep_their_order():
+def test_evaluations_are_fair_and_a_lone_race_runs_on_its_own_token():
     alice, bob = _user("alice"), _user("bob")
     models = {}
     for user, n in ((alice, 2), (bob, 1)):
