@@ -6,6 +6,7 @@ Queues (see docs/architecture.md): ``training`` (trainers), ``simulation`` (roll
     <app>.tasks.train_*      -> training
     <app>.tasks.simulate_*   -> simulation   (also rollout_*)
     <app>.tasks.evaluate_*   -> evaluation
+    <app>.tasks.check_readiness -> readiness   (the evaluation worker consumes it too)
     <app>.tasks.validate_*, replay_*, import_*, export_*   -> interactive
     anything else            -> default    (the reaper, the league's periodic tasks)
 
@@ -40,13 +41,16 @@ QUEUE_SIMULATION = "simulation"
 QUEUE_EVALUATION = "evaluation"
 QUEUE_INTERACTIVE = "interactive"
 QUEUE_DEFAULT = "default"
-QUEUES = (QUEUE_TRAINING, QUEUE_SIMULATION, QUEUE_EVALUATION, QUEUE_INTERACTIVE, QUEUE_DEFAULT)
+QUEUE_READINESS = "readiness"  # readiness checks (issue 51): their own queue
+QUEUES = (QUEUE_TRAINING, QUEUE_SIMULATION, QUEUE_EVALUATION, QUEUE_INTERACTIVE, QUEUE_DEFAULT,
+          QUEUE_READINESS)  # fmt: skip
 
 TASK_ROUTES = {
     "*.tasks.train_*": {"queue": QUEUE_TRAINING},
     "*.tasks.simulate_*": {"queue": QUEUE_SIMULATION},
     "*.tasks.rollout_*": {"queue": QUEUE_SIMULATION},
     "*.tasks.evaluate_*": {"queue": QUEUE_EVALUATION},
+    "*.tasks.check_readiness": {"queue": QUEUE_READINESS},
     "*.tasks.validate_*": {"queue": QUEUE_INTERACTIVE},
     "*.tasks.replay_*": {"queue": QUEUE_INTERACTIVE},
     "*.tasks.import_*": {"queue": QUEUE_INTERACTIVE},
@@ -65,6 +69,7 @@ def time_limits(job_s: int, evaluation_s: int, quick_s: int) -> dict[str, dict[s
         "training.tasks.simulate_episodes": pair(job_s),
         "training.tasks.evaluate_model": pair(evaluation_s),
         "training.tasks.evaluate_race": pair(evaluation_s),
+        "training.tasks.check_readiness": pair(evaluation_s),
         "training.tasks.reap_orphans": pair(min(quick_s, 120)),
         "*": pair(quick_s),
     }

@@ -45,6 +45,7 @@ from training.catalog import (
     parse_hyperparameters,
     preset,
 )
+from training.conditions_form import add_condition_fields, clean_conditions, condition_groups
 from training.models import MODEL_NAME_RE, Direction
 
 SENSORS = [("FRONT_FACING_CAMERA", "Camera"), ("STEREO_CAMERAS", "Stereo camera")]
@@ -211,6 +212,7 @@ class ModelCreateForm(RaceSettingsForm):
                                for a in DEFAULT_DISCRETE]  # fmt: skip
         self.action_rows = action_rows
         self.row_errors: dict[int, str] = {}
+        add_condition_fields(self)  # the outside world: off by default
 
     # ---- the action space
     def _discrete_actions(self) -> list[dict] | None:
@@ -285,6 +287,7 @@ class ModelCreateForm(RaceSettingsForm):
                 )
             except services.ServiceError as exc:
                 add_service_error(self, exc.message, "extra_track_ids")
+        clean_conditions(self, data)
         if data.get("actions") is not None and "hyperparameters" in data and not self.errors:
             self._service_check(lambda: services.check_model_spec(
                 track_id=data["track_id"], direction=data["direction"],
@@ -295,6 +298,11 @@ class ModelCreateForm(RaceSettingsForm):
                 hyperparameters=data["hyperparameters"], max_minutes=data["max_minutes"],
             ))  # fmt: skip
         return data
+
+    @property
+    def condition_groups(self) -> list[dict]:
+        """The "Outside world" fieldset, family by family (its template's rows)."""
+        return condition_groups(self)
 
     def _race(self, data: dict) -> None:
         """``race_config``: the race settings the services accept for the race type."""

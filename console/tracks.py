@@ -13,7 +13,14 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-from racing.preview import render_preview_png, render_race_preview_png
+import numpy as np
+
+from racing.conditions import IMAGE_FAMILIES, Conditions, ConditionsSpec, parameters
+from racing.preview import (
+    render_conditions_preview_png,
+    render_preview_png,
+    render_race_preview_png,
+)
 from racing.track import TrackError
 from racing.tracks import TrackInfo, UnknownTrackError
 from training.services import race_config, track_catalog
@@ -25,6 +32,8 @@ __all__ = [
     "TrackPreview",
     "TrackRow",
     "UnknownTrackError",
+    "conditions_preview",
+    "conditions_samples",
     "preview_cache_clear",
     "race_preview",
     "track_catalog",
@@ -176,8 +185,77 @@ def race_preview(
     return preview
 
 
+CONDITIONS_PREVIEW_SEED = 51
+"""The seed of the Tracks page's sampled conditions: the same strip for everyone, every day."""
+CONDITIONS_PREVIEW_SAMPLES = 3
+"""How many sampled conditions the strip shows beside the clean world."""
+CONDITIONS_CACHE_SIZE = 16
+"""Tracks whose conditions strip is kept rendered (the last asked for)."""
+_conditions_cache: OrderedDict[str, list[TrackPreview]] = OrderedDict()
+
+
+@dataclass(frozen=True, slots=True)
+class ConditionsSample:
+    """One picture of the strip: the conditions drawn and a caption saying what they are."""
+
+    conditions: Conditions
+    label: str
+
+
+def _conditions_label(conditions: Conditions, most: int = 3) -> str:
+    """The ``most`` parameters drawn furthest from neutral (a share of their widest range),
+    in words: ``"Ambient light -32 gray levels · Blur 1.2 pixels"``."""
+    if conditions.is_clean:
+        return "The clean world (the simulator as it is)"
+    moved = []
+    for family in IMAGE_FAMILIES:
+        for name, info in parameters()[family].items():
+            value = conditions.values[family][name]
+            share = abs(value - info.neutral) / ((info.high - info.low) or 1.0)
+            if share > 0.01:
+                moved.append(
+                    (share, f"{info.label} {value:.3g}{f' {info.unit}' if info.unit else ''}")
+                )
+    moved.sort(key=lambda pair: -pair[0])
+    return " · ".join(text for _, text in moved[:most])
+
+
+def conditions_samples() -> list[ConditionsSample]:
+    """What the Tracks page's strip shows: the clean world, then
+    :data:`CONDITIONS_PREVIEW_SAMPLES` draws of every family that changes the camera's picture
+    at its widest ranges, from :data:`CONDITIONS_PREVIEW_SEED` (the same on every load)."""
+    spec = ConditionsSpec.default(families=IMAGE_FAMILIES)
+    rng = np.random.default_rng(CONDITIONS_PREVIEW_SEED)
+    drawn = [Conditions.clean(), *(spec.sample(rng) for _ in range(CONDITIONS_PREVIEW_SAMPLES))]
+    return [ConditionsSample(c, _conditions_label(c)) for c in drawn]
+
+
+def conditions_preview(track_id: str, index: int) -> TrackPreview:
+    """Picture ``index`` of ``track_id``'s strip (:func:`conditions_samples`): the car's camera
+    at the start line under those conditions, rendered once per track (the last
+    :data:`CONDITIONS_CACHE_SIZE` tracks kept). Raises UnknownTrackError, and IndexError for an
+    index outside the strip."""
+    samples = conditions_samples()
+    if not 0 <= index < len(samples):
+        raise IndexError(f"the strip has {len(samples)} pictures")
+    with _preview_lock:
+        cached = _conditions_cache.get(track_id)
+        if cached is not None:
+            _conditions_cache.move_to_end(track_id)
+            return cached[index]
+    track = track_catalog().load(track_id)
+    pngs = render_conditions_preview_png(track, [sample.conditions for sample in samples])
+    previews = [TrackPreview(png=png, etag=hashlib.sha256(png).hexdigest()[:32]) for png in pngs]
+    with _preview_lock:
+        _conditions_cache[track_id] = previews
+        while len(_conditions_cache) > CONDITIONS_CACHE_SIZE:
+            _conditions_cache.popitem(last=False)
+    return previews[index]
+
+
 def preview_cache_clear() -> None:
     """Forget every rendered preview (e.g. after a track was imported again)."""
     with _preview_lock:
         _preview_cache.clear()
         _race_cache.clear()
+        _conditions_cache.clear()

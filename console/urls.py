@@ -10,6 +10,7 @@
 /jobs/training/<id>/stop/  /evaluations/<id>/stop/                           stop a job
 /api/reward/validate       the reward function's Validate button (JSON)
 /api/openapi.json          the JSON API's OpenAPI description (console/openapi.json)
+/races/, /races/new/, /races/<id>/[video.mp4|traces.tar.gz|stop/]   racers race each other
 /league/                   the league (leaderboard app)
 /help/, /help/<guide>/     the guides in docs/ (console/helpdocs.py)
 """
@@ -24,6 +25,8 @@ from django.views.generic.base import RedirectView
 
 from console.views import accounts, analysis, api, downloads, model_page, models, pages
 from console.views import help as help_views
+from console.views import races as race_views
+from console.views import readiness as readiness_views
 
 
 class TrackIdConverter:
@@ -45,6 +48,11 @@ urlpatterns = [
     path("tracks/", pages.track_gallery, name="track-gallery"),
     path("tracks/<track:track_id>.png", pages.track_preview, name="track-preview"),
     path("tracks/<track:track_id>/race.png", pages.track_race_preview, name="track-race-preview"),
+    path(
+        "tracks/<track:track_id>/conditions/<int:index>.png",
+        pages.track_conditions_preview,
+        name="track-conditions-preview",
+    ),
     path("tracks/import/", pages.track_upload, name="track-upload"),
     # accounts
     path("accounts/signup/", accounts.signup, name="signup"),
@@ -97,9 +105,30 @@ urlpatterns = [
         downloads.evaluation_video,
         name="evaluation-video",
     ),
+    # readiness for the real car (issue 51)
+    path(
+        "models/<int:model_id>/readiness/", readiness_views.readiness_start, name="readiness-start"
+    ),
+    path("readiness/<int:check_id>/stop/", readiness_views.readiness_stop, name="readiness-stop"),
+    path(
+        "readiness/<int:check_id>/video/<slug:key>.mp4",
+        readiness_views.readiness_video,
+        name="readiness-video",
+    ),
+    path("readiness/compare/", readiness_views.readiness_compare, name="readiness-compare"),
     path("api/reward/validate", api.reward_validate, name="reward-validate"),
     path("api/tasks/<str:task_id>", api.background_task, name="background-task"),
     path("api/openapi.json", api.openapi_schema, name="openapi-schema"),
+    # races between racers (console/views/races.py)
+    path("races/", race_views.race_list, name="races"),
+    path("races/new/", race_views.race_new, name="race-new"),
+    path("races/<int:race_id>/", race_views.race_detail, name="race-detail"),
+    path("races/<int:race_id>/video.mp4", race_views.race_video_view, name="race-video"),
+    path("races/<int:race_id>/traces.tar.gz", race_views.race_traces, name="race-traces"),
+    path("races/<int:race_id>/stop/", race_views.race_stop_view, name="race-stop"),
+    path(
+        "models/<int:model_id>/challenges/", race_views.model_challenges, name="model-challenges"
+    ),  # fmt: skip
     path("league/", include("leaderboard.urls")),
     # help: the guides in docs/, rendered
     path("help/", help_views.help_index, name="help"),

@@ -14,18 +14,21 @@ from leaderboard.divisions import division_for
 from leaderboard.models import Division, Event, EventEntrant, RankingMethod, new_invite_token
 from training.models import RaceType
 from training.services import ServiceError, check_track, race_settings
+from training.services.conditions import conditions_check
 
 EVENT_FIELDS = (
     "season", "name", "description", "track_id", "direction", "race_type", "number_of_objects",
     "randomize_objects", "bot_count", "bot_speed_mps", "bot_lane_changes", "opens_at",
     "closes_at", "division", "ranking_method", "min_laps", "max_laps", "off_track_penalty_s",
     "collision_penalty_s", "max_resets", "max_submissions_per_racer", "bracket_size",
-    "bracket_laps", "bracket_on_race_day",
+    "bracket_laps", "bracket_on_race_day", "conditions", "conditions_seed",
+    "live_speed_control",
 )  # fmt: skip
 RULE_FIELDS = (
     "track_id", "direction", "race_type", "ranking_method", "min_laps", "max_laps",
     "off_track_penalty_s", "collision_penalty_s", "max_resets", "number_of_objects",
-    "randomize_objects", "bot_count", "bot_speed_mps", "bot_lane_changes",
+    "randomize_objects", "bot_count", "bot_speed_mps", "bot_lane_changes", "conditions",
+    "conditions_seed",
 )  # fmt: skip
 """What decides a score: fixed once the first submission is in."""
 
@@ -88,6 +91,12 @@ def _check_event(event: Event) -> None:
         raise LeagueError("a bracket takes the top 4, 8, 16 or 32", field="bracket_size")
     if not 1 <= event.bracket_laps <= 10:
         raise LeagueError("a bracket race runs 1 to 10 laps", field="bracket_laps")
+    try:  # the outside world: {} (clean) unless the event says otherwise
+        event.conditions = conditions_check(event.conditions)
+    except ServiceError as exc:
+        raise LeagueError(exc.message, field="conditions") from None
+    if not 0 <= (event.conditions_seed or 0) < 2**31:
+        raise LeagueError("the conditions' seed is 0 to 2147483647", field="conditions_seed")
 
 
 def event_create(*, organiser, is_private: bool, **fields: Any) -> Event:

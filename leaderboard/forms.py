@@ -3,12 +3,19 @@ services; forms only parse input."""
 
 from __future__ import annotations
 
+import random
 from datetime import timedelta
 
 from django import forms
 from django.utils import timezone
 
 from leaderboard.models import Division, RacerProfile, RankingMethod, Season
+from training.conditions_form import (
+    add_condition_fields,
+    clean_conditions,
+    condition_groups,
+    conditions_initial,
+)
 from training.models import Direction, RaceType, RacingModel
 from training.services import track_catalog
 
@@ -96,10 +103,26 @@ class EventForm(forms.Form):
         help_text="On: each match joins the race-day queue and a facilitator launches it live. "
         "Off: matches run as soon as they are ready.",
     )  # fmt: skip
+    live_speed_control = forms.BooleanField(
+        label="Live speed control on race day", required=False,
+        help_text="On: during their turn, a racer sets their car's speed (0.5×-1.5×) from "
+        "their phone, as in DeepRacer's LIVE races.",
+    )  # fmt: skip
+
+    conditions_seed = forms.IntegerField(
+        label="Conditions seed", min_value=0, max_value=2**31 - 1, required=False,
+        help_text="With the outside world on: the seed of its draws, the same for every "
+        "entrant (change it for another set of conditions).",
+    )  # fmt: skip
 
     def __init__(self, *args, public: bool, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.fields["track_id"].choices = _track_choices()
+        add_condition_fields(self)  # the outside world: off (the clean world) by default
+        if isinstance(self.initial.get("conditions"), dict):  # an event being edited
+            self.initial.update(conditions_initial(self.initial["conditions"]))
+        elif not self.is_bound:  # a new event: its own conditions' seed
+            self.initial.setdefault("conditions_seed", random.randrange(2**31))
         if not public:
             del self.fields["season"]
             del self.fields["division"]
@@ -111,8 +134,28 @@ class EventForm(forms.Form):
     def clean_bracket_laps(self) -> int:
         return self.cleaned_data.get("bracket_laps") or 2
 
+    def clean(self) -> dict:
+        data = super().clean()
+        clean_conditions(self, data)
+        return data
+
+    @property
+    def condition_groups(self) -> list[dict]:
+        return condition_groups(self)
+
+    @property
+    def conditions_open(self) -> bool:
+        """Whether the page opens the outside-world settings: on, typed into, or wrong."""
+        return bool(self["conditions_seed"].errors) or any(
+            group["open"] or group["toggle"].value() for group in self.condition_groups
+        )
+
     def event_fields(self) -> dict:
-        return dict(self.cleaned_data)
+        """The event's fields: the outside-world fieldset becomes ``conditions`` ({}: off)."""
+        fields = {k: v for k, v in self.cleaned_data.items() if not k.startswith("cond_")}
+        fields["conditions"] = self.cleaned_data.get("conditions", {})
+        fields["conditions_seed"] = self.cleaned_data.get("conditions_seed") or 0
+        return fields
 
 
 class SubmitForm(forms.Form):

@@ -79,6 +79,12 @@ class Event(models.Model):
         default=1.0, validators=[MinValueValidator(0.2), MaxValueValidator(6.0)]
     )
     bot_lane_changes = models.BooleanField(default=False)
+    # The world outside (issue 51): off ({}) by default, racing stays in the clean world.
+    conditions = models.JSONField(default=dict, blank=True)
+    """``racing.conditions.ConditionsSpec.to_dict()`` of the conditions every entrant's
+    evaluation drives in; {}: the clean world."""
+    conditions_seed = models.PositiveIntegerField(default=0)
+    """The seed of the conditions' draws: every entrant meets the same sequence."""
 
     opens_at = models.DateTimeField()
     closes_at = models.DateTimeField()
@@ -117,12 +123,17 @@ class Event(models.Model):
         default=False, help_text="Matches wait in the race-day queue instead of running at once."
     )
     bracket = models.JSONField(default=dict, blank=True)
-    """``{"bracket": leaderboard.bracket.Bracket.to_dict(), "seeds": [submission ids by seed],
-    "withdrawn": [submission ids]}`` once seeded."""
+    """The seeding, once seeded: ``{"seeds": [submission ids by seed], "withdrawn": [submission
+    ids]}``. Who went through is the BracketMatch rows' (``leaderboard.bracket``)."""
     # Race day: a facilitator's queue and the broadcast page.
     spectator_token = models.CharField(max_length=64, blank=True)
     """Non-empty: anyone with ``?watch=<token>`` sees the broadcast page without an account."""
     race_day_paused = models.BooleanField(default=False)
+    live_speed_control = models.BooleanField(
+        default=False,
+        help_text="During their race-day turn, a racer sets their car's speed (0.5×-1.5×) "
+        "from their phone.",
+    )
     organiser = models.ForeignKey(
         settings.AUTH_USER_MODEL, on_delete=models.PROTECT, related_name="organised_events"
     )

@@ -80,6 +80,9 @@ def submission_create(*, event: Event, user, model: RacingModel) -> Submission:
                 off_track_penalty_s=event.off_track_penalty_s,
                 crash_penalty_s=event.collision_penalty_s,
                 purpose="submission",
+                # The event's outside world ({}: clean), the same draws for every entrant.
+                conditions=event.conditions or None,
+                conditions_seed=event.conditions_seed,
             )
         except JobQuotaError as exc:
             raise LeagueError(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 
@@ -13,6 +14,8 @@ from racing import carstep
 from racing.actions import ActionSpec
 from racing.car import CarSim, Pose
 from racing.carstep import CarOnTrack
+from racing.conditioned_camera import conditioned
+from racing.conditions import Actuator, Conditions, ConditionsError, ConditionsSpec
 from racing.lidar import LidarSensor
 from racing.objects import RaceObject
 from racing.params import build_params
@@ -28,6 +31,8 @@ ROUND_ROBIN_ADVANCE = 0.05
 """DeepRacer moves each episode's start this share of the track further on."""
 CAMERA_RESOLUTION_M = 0.005
 VIEW_RESOLUTION_M = 0.01
+CONDITIONS_STREAM = 0xC0D1
+"""Mixed with ``reset(seed=...)`` into the conditions' own generator (apart from np_random)."""
 Observation = np.ndarray | dict[str, np.ndarray]
 __all__ = ["RacingEnv", "RewardValueError", "progress_reward"]
 
@@ -91,11 +96,28 @@ class RacingEnv(gym.Env):
     ``laps`` (finished :class:`LapRecord` s), ``lap_finished``, ``reset`` and ``penalty_s``,
     ``params`` (this step's params) and ``trace`` (a :class:`TraceRow`).
 
+    **Conditions** (``conditions``: a :class:`~racing.conditions.ConditionsSpec` or its
+    ``to_dict()`` form; ``None``, the default, is the clean simulator): each episode draws its
+    :class:`~racing.conditions.Conditions` at reset, from ``np.random.default_rng([
+    conditions_seed, episode])`` when ``conditions_seed`` is given (every env with the same seed
+    draws the same sequence: an event's entrants), else from the env's own conditions stream,
+    seeded by ``reset(seed=...)`` apart from ``np_random`` (the objects' and the LIDAR's draws
+    are the same with or without conditions). :meth:`set_conditions` fixes them for the
+    following episodes. The light, look and camera families change the camera images (front
+    and stereo; :mod:`racing.conditioned_camera`); the car and latency families change the
+    executed action (:class:`~racing.conditions.Actuator`; in the first ``k`` steps of a
+    latency of ``k`` frames the car gets straight ahead at 0 m/s). The LIDAR, the rendered
+    views for people (chase, top-down) and the reward's ``params`` stay as without conditions:
+    ``params['steering_angle']`` and ``params['speed']``, and the trace's ``steer`` and
+    ``throttle``, are the action the model chose, as DeepRacer's; ``object_in_camera`` is the
+    true camera's. ``info['conditions']`` at reset is the episode's ``Conditions.to_dict()``
+    whenever a spec or fixed conditions are set.
+
     **Determinism**: the same seed and actions give the same observations and rewards; a
     seeded reset restarts the round-robin start sequence and the alternating direction.
 
     **Version history**: v0 (first release; objects, bots and LIDAR added without changing
-    the camera-only time trial).
+    the camera-only time trial; conditions added without changing an env without them).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 15}
@@ -117,6 +139,8 @@ class RacingEnv(gym.Env):
         track_dirs: Sequence[str] = (),
         substeps: int = 4,
         camera_backend: str = "fast",
+        conditions: ConditionsSpec | dict | None = None,
+        conditions_seed: int | None = None,
     ) -> None:
         super().__init__()
         if isinstance(track, str):
@@ -172,6 +196,24 @@ class RacingEnv(gym.Env):
         self.car = CarOnTrack(
             self.sim, RaceTracker(self.rules, self.track.length, self.track.closed)
         )
+        if conditions is not None and not isinstance(conditions, ConditionsSpec):
+            conditions = ConditionsSpec.from_dict(conditions)
+        if conditions is not None and camera_backend != "fast":
+            raise ConditionsError("conditions need the fast camera (camera_backend='fast')")
+        self.conditions_spec: ConditionsSpec | None = conditions
+        if conditions_seed is not None and (
+            isinstance(conditions_seed, bool) or int(conditions_seed) < 0
+        ):
+            raise ConditionsError(
+                f"conditions_seed must be a whole number ≥ 0, not {conditions_seed!r}"
+            )
+        self.conditions_seed = None if conditions_seed is None else int(conditions_seed)
+        self.conditions: Conditions | None = None
+        """This episode's conditions (``None``: clean, no spec and none fixed)."""
+        self._fixed_conditions: Conditions | None = None
+        self._conditions_stream: np.random.Generator | None = None
+        self._eye = self.camera  # the camera the observations come from this episode
+        self._actuator: Actuator | None = None
         self.episode = -1
         self._view = None
         self.params: dict = {}
@@ -198,9 +240,11 @@ class RacingEnv(gym.Env):
             # A seed restarts everything, the round-robin start sequence included.
             self.episode = -1
             self._set_track(self._initial_reverse)
+            self._conditions_stream = np.random.default_rng([int(seed), CONDITIONS_STREAM])
         self.episode += 1
         if self.alternate_direction and self.track.closed and self.episode > 0:
             self._set_track(not self.track.is_reversed)
+        self._draw_conditions()
         if self._has_objects:
             self.world.reset(self.track, self.np_random)
         if "start_progress" in options:
@@ -240,6 +284,8 @@ class RacingEnv(gym.Env):
             "start_s": loc.s,
             "params": self.params,
         }
+        if self.conditions is not None:
+            info["conditions"] = self.conditions.to_dict()
         return obs, info
 
     def step(self, action):
@@ -248,7 +294,12 @@ class RacingEnv(gym.Env):
         steering, speed = self.actions.decode(action)
         if self._has_objects:
             self.world.advance(self.sim.dt)  # bots move first: contacts come from this step
-        step = carstep.drive(self.car, self.track, steering, speed, self._crash)
+        if self._actuator is None:
+            step = carstep.drive(self.car, self.track, steering, speed, self._crash)
+        else:  # the car's errors and latency: params and the trace keep the chosen action
+            executed = self._actuator(steering, speed)
+            step = carstep.drive(self.car, self.track, *executed, self._crash)
+            step = dataclasses.replace(step, steering=steering, speed=speed)
         judged, loc = step.judged, step.loc
         self.sim_time = self.tracker.sim_time
         self.params = self._params(
@@ -309,7 +360,31 @@ class RacingEnv(gym.Env):
         self.sim.close()
         super().close()
 
+    def set_conditions(self, conditions: Conditions | None) -> None:
+        """Fix the conditions of the following episodes (from the next reset), overriding the
+        spec's draws; ``None`` goes back to the spec (or to clean without one)."""
+        if conditions is not None and not isinstance(conditions, Conditions):
+            raise ConditionsError(f"set_conditions takes Conditions or None, not {conditions!r}")
+        self._fixed_conditions = conditions
+
     # ------------------------------------------------------------------ internals
+    def _draw_conditions(self) -> None:
+        """This episode's conditions, and the camera and actuator they make."""
+        spec, fixed = self.conditions_spec, self._fixed_conditions
+        if spec is None and fixed is None:
+            self.conditions, self._eye, self._actuator = None, self.camera, None
+            return
+        if self.conditions_seed is not None:
+            rng = np.random.default_rng([self.conditions_seed, self.episode])
+        else:
+            if self._conditions_stream is None:  # never seeded: fresh entropy
+                self._conditions_stream = np.random.default_rng()
+            rng = np.random.default_rng(self._conditions_stream.integers(2**63))
+        conditions = fixed if fixed is not None else spec.sample(rng)
+        self.conditions = conditions
+        self._eye = conditioned(self.camera, self.track, conditions, rng)
+        self._actuator = Actuator(conditions) if conditions.changes_action else None
+
     def _set_track(self, reverse: bool) -> None:
         track = self._tracks.get(reverse)
         if track is None:
@@ -342,7 +417,7 @@ class RacingEnv(gym.Env):
     def _observe(self) -> Observation:
         """The observation: the image, or the image and the LIDAR reading in a dict."""
         objects = self.world.objects
-        image = self.camera.observe(self.pose, objects)
+        image = self._eye.observe(self.pose, objects)
         if self.lidar is None:
             return image
         reading = self.lidar.observe(self.pose, objects, self.np_random)

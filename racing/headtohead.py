@@ -25,6 +25,10 @@ second.
 the inner lane. Each car's laps count from its own grid spot, so every car drives the same
 distance. :func:`grid_order` rotates the grid between rounds so that everyone gets the pole.
 
+**Live speed control** (DeepRacer's LIVE races): a :class:`Racer` with a ``speed`` callable
+is asked its multiplier (0.5-1.5) once per step its car drives; the car drives its action's
+speed times that (:func:`racing.carstep.drive`), and ``RaceCar.speeds`` keeps one per step.
+
 **Determinism**: the same racers, actions and ``seed`` give the same race (the bots' lanes and
 the LIDAR noise come from generators seeded with it; each car has its own PyBullet world).
 """
@@ -40,6 +44,8 @@ from racing import carstep
 from racing.actions import ActionSpaceError, ActionSpec
 from racing.bodies import ObjectBodies
 from racing.car import CarSim
+from racing.conditioned_camera import conditioned
+from racing.conditions import Conditions
 from racing.lidar import LidarSensor
 from racing.objects import BotFleet, Lanes, RaceObject
 from racing.race import LANE_INNER, LANE_OUTER, RaceConfig, RaceType
@@ -57,6 +63,7 @@ from racing.racecar import (
 from racing.rules import LapRecord, RaceRules, RaceTracker, Status
 from racing.sensors import CameraSensor, ground_for, validate_sensors
 from racing.simtrace import TraceRow
+from racing.timing import RaceTiming
 from racing.track import Track, TrackError
 
 __all__ = [
@@ -72,6 +79,8 @@ __all__ = [
     "grid_order",
 ]
 CAMERA_RESOLUTION_M = 0.005
+CONDITIONS_STREAM = 0xC0D1
+"""Mixed with the race's seed and the car's index into its camera's conditions generator."""
 
 
 @dataclass(frozen=True)
@@ -92,7 +101,9 @@ class HeadToHeadRace:
     ``track`` is a loop already in its driving direction; ``race`` is a time trial or a
     head-to-bot :class:`RaceConfig` (its bot cars join the race); ``rules`` gives the laps,
     resets and penalties (``rules.time_limit_s`` is the race's time limit, required);
-    ``grid`` lists entry indices in grid order (default: entry order). Raises ``ValueError``
+    ``grid`` lists entry indices in grid order (default: entry order); ``conditions`` (a
+    :class:`~racing.conditions.Conditions`) are applied to every car's camera (the light, look
+    and camera families; the car and latency families are not applied here). Raises ``ValueError``
     for anything a race cannot run with.
 
     Drive it with :meth:`reset` (the first observations), then :meth:`step` with one action per
@@ -111,6 +122,7 @@ class HeadToHeadRace:
         seed: int = 0,
         grid: Sequence[int] | None = None,
         substeps: int = 4,
+        conditions: Conditions | None = None,
     ) -> None:
         if not MIN_RACERS <= len(racers) <= MAX_RACERS:
             raise ValueError(f"a race has {MIN_RACERS} to {MAX_RACERS} cars, not {len(racers)}")
@@ -132,6 +144,9 @@ class HeadToHeadRace:
         self.lanes = Lanes(track)
         self.clock_s = 0.0
         self.steps = 0
+        self.timing = RaceTiming(track.length, rules.laps)
+        """The race's timing, updated once a step (:meth:`reset`, :meth:`step`): positions,
+        gaps, sectors; the broadcast and the results read it, nobody computes their own."""
         self.fleet: BotFleet | None = None
         if race.has_bots:
             self.fleet = BotFleet(track, self.lanes, race, np.random.default_rng(seed),
@@ -149,7 +164,12 @@ class HeadToHeadRace:
                     colour=RACER_COLOURS[index],
                     sim=sim,
                     bodies=ObjectBodies(sim),
-                    camera=CameraSensor(ground, sensors[0]),
+                    camera=conditioned(  # every car's camera sees the same conditions
+                        CameraSensor(ground, sensors[0]),
+                        track,
+                        conditions,
+                        np.random.default_rng([seed, index, CONDITIONS_STREAM]),
+                    ),  # fmt: skip
                     lidar=LidarSensor(sensors[1]) if len(sensors) > 1 else None,
                     actions=ActionSpec.parse(racer.action_space),
                     tracker=RaceTracker(car_rules, track.length, closed=True),
@@ -176,6 +196,8 @@ class HeadToHeadRace:
             lane = LANE_INNER if slot % 2 == 0 else LANE_OUTER
             carstep.place(car, self.track, s, self.lanes.offset(s, lane))
             car.tracker.start(car.s)
+        self.timing = RaceTiming(self.track.length, self.rules.laps)
+        self.timing.update(self)
         return self.observations()
 
     def step(self, actions: Sequence[object | None]) -> list[StepOutcome | None]:
@@ -210,6 +232,7 @@ class HeadToHeadRace:
             for car in self.cars:
                 if car.on_track:
                     car.state = CarState.TIME_UP
+        self.timing.update(self)
         return outcomes
 
     def retire(self, index: int, reason: str) -> None:
@@ -218,6 +241,8 @@ class HeadToHeadRace:
         if car.on_track:
             car.state = CarState.OUT
             car.reason = reason
+            if self.timing.latest is not None:  # the tower shows it out from now on
+                self.timing.update(self)
 
     def observations(self) -> list[object | None]:
         """What each car that acts next step sees now; ``None`` for the others."""
@@ -228,16 +253,11 @@ class HeadToHeadRace:
         return (*self.bots, *(car.as_object() for car in self.cars if car.on_track))
 
     def standings(self) -> list[RaceCar]:
-        """The cars in race order: finishers by finishing time, then the others by distance
-        covered (those still on track before those out); ties by grid slot."""
-
-        def key(car: RaceCar) -> tuple:
-            if car.state is CarState.FINISHED:
-                return (0, car.finish_time_s, car.grid_slot)
-            group = 2 if car.state is CarState.OUT else 1
-            return (group, -round(car.distance_m(self.track.length), 6), car.grid_slot)
-
-        return sorted(self.cars, key=key)
+        """The cars in race order, as the timing tower shows them: :attr:`timing`'s positions
+        (:class:`~racing.timing.RaceTiming`'s rule and tie-breaks, the one place that decides
+        positions), as of the last step."""
+        latest = self.timing.latest or self.timing.update(self)
+        return [self.cars[line.index] for line in latest.cars]
 
     def close(self) -> None:
         for car in self.cars:
@@ -266,12 +286,13 @@ class HeadToHeadRace:
     def _drive(
         self, car: RaceCar, steering: float, speed: float, action: int | tuple[float, float]
     ) -> StepOutcome:
+        if car.racer.speed is not None:  # live speed control: read once a step, from now on
+            car.speed_multiplier = float(car.racer.speed(self.clock_s))
         step = carstep.drive(car, self.track, steering, speed, lambda loc: self._crashed(car))
         judged = step.judged
         if judged.reset:
             carstep.respawn(car, self.track, step)
         finished = car.tracker.laps[-1] if judged.lap_finished else None
-        car.time_sectors(finished)
         if judged.done or judged.truncated:
             if judged.status is Status.LAP_COMPLETE:
                 car.state = CarState.FINISHED
@@ -280,10 +301,8 @@ class HeadToHeadRace:
                 car.state, car.reason = CarState.TIME_UP, "lap time limit"
             else:
                 car.state, car.reason = CarState.OUT, f"{judged.status.label}, no resets left"
-        # This log has always written where a respawned car was put (RacingEnv: where judged).
-        trace = carstep.trace_row(
-            car, self.track, step, episode=0, action=action, reward=0.0, where_put=True
-        )
+        trace = carstep.trace_row(car, self.track, step, episode=0, action=action, reward=0.0)
+        car.speeds.append(step.multiplier)
         return StepOutcome(
             judged.status, judged.reset, judged.penalty_s, finished, not car.on_track, trace
         )

@@ -8,18 +8,25 @@ road at waypoint 0 and an arrow pointing the driving direction.
 A race's preview (:func:`render_race_preview_png`) adds the objects of an episode's start, as
 the simulator places them: boxes at their fixed (or one random draw of their) places, bot cars
 at their starting places, each drawn to scale in the colours the cameras see them.
+
+:func:`render_conditions_preview_png` shows what the car's camera sees under training
+conditions (:mod:`racing.conditions`): the model's own 160×120 grayscale frame, enlarged.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
 
+from racing.conditioned_camera import conditioned, pose_at
+from racing.conditions import Conditions
 from racing.drawing import objects_colours
 from racing.objects import BotFleet, Lanes, RaceObject, place_boxes
 from racing.race import RaceConfig
+from racing.sensors import CameraSensor, ground_for
 from racing.texture import render_ground
 from racing.track import Track
 
@@ -177,3 +184,40 @@ def _draw_arrow(image: np.ndarray, track: Track, to_px, *, px_per_m: float) -> N
         _SHIFT,
         tip_fraction,
     )
+
+
+CONDITIONS_PREVIEW_SCALE = 2
+"""The camera's 160×120 frame is shown this many times larger (nearest neighbour: the pixels
+the model gets, each a square)."""
+CONDITIONS_PREVIEW_SEED = 0
+"""The generator of a preview's per-episode draws (where glare falls, the noise): fixed, so a
+preview is the same picture every time."""
+
+
+def render_conditions_preview_png(
+    track: Track,
+    conditions: Sequence[Conditions],
+    *,
+    at: float = 0.0,
+    scale: int = CONDITIONS_PREVIEW_SCALE,
+) -> list[bytes]:
+    """For each of ``conditions``, a grayscale PNG of what the front camera gives the model
+    (160×120, shown ``scale`` times larger) from a car on the centre line at fraction ``at``
+    (0-1) of the lap of ``track`` (in its driving direction), facing along it. Clean
+    conditions give the simulator's own frame. The same inputs give the same bytes."""
+    if not 1 <= int(scale) <= 8:
+        raise ValueError(f"scale must be 1-8, not {scale}")
+    ground = ground_for(track, resolution=0.005, rgb=False)
+    pose = pose_at(track, at)
+    pictures = []
+    for c in conditions:
+        rng = np.random.default_rng(CONDITIONS_PREVIEW_SEED)
+        camera = conditioned(CameraSensor(ground), track, c, rng)
+        frame = camera.observe(pose)[..., 0]
+        frame = cv2.resize(frame, None, fx=int(scale), fy=int(scale),
+                           interpolation=cv2.INTER_NEAREST)  # fmt: skip
+        ok, buffer = cv2.imencode(".png", frame)
+        if not ok:  # pragma: no cover - cv2 only fails on empty or odd images
+            raise RuntimeError("PNG encoding failed")
+        pictures.append(buffer.tobytes())
+    return pictures

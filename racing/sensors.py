@@ -103,6 +103,8 @@ class CameraMount:
     hfov_deg: float = CAMERA_HFOV_DEG
     width: int = CAMERA_WIDTH
     height_px: int = CAMERA_HEIGHT
+    yaw_deg: float = 0.0
+    """The lens turned left of the car's heading on its mount (conditions' mount offsets)."""
 
 
 def intrinsics(mount: CameraMount) -> np.ndarray:
@@ -115,7 +117,8 @@ def intrinsics(mount: CameraMount) -> np.ndarray:
 
 def camera_frame(pose: Pose, mount: CameraMount) -> tuple[np.ndarray, np.ndarray]:
     """World position ``C`` and world→camera rotation ``R`` (OpenCV axes: x right, y down,
-    z forward) of a camera on a car at ``pose``. Only the car's yaw turns the camera."""
+    z forward) of a camera on a car at ``pose``. Only the car's yaw (and the mount's
+    ``yaw_deg``) turns the camera."""
     c, s = math.cos(pose.yaw), math.sin(pose.yaw)
     pos = np.array(
         [
@@ -124,6 +127,9 @@ def camera_frame(pose: Pose, mount: CameraMount) -> tuple[np.ndarray, np.ndarray
             mount.height,
         ]
     )
+    if mount.yaw_deg:  # the lens turned on its mount: where it looks, not where it is
+        look = pose.yaw + math.radians(mount.yaw_deg)
+        c, s = math.cos(look), math.sin(look)
     pitch = math.radians(mount.pitch_deg)
     cp, sp = math.cos(pitch), math.sin(pitch)
     rot = np.array(
@@ -205,6 +211,9 @@ class PinholeCamera:
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
         cam_x = pose.x + c * m.forward - s * m.left
         cam_y = pose.y + s * m.forward + c * m.left
+        if m.yaw_deg:  # the lens turned on its mount: where it looks, not where it is
+            look = pose.yaw + math.radians(m.yaw_deg)
+            c, s = math.cos(look), math.sin(look)
         pitch = math.radians(m.pitch_deg)
         cp, sp = math.cos(pitch), math.sin(pitch)
         fx, cx, fy, cy = self.K[0, 0], self.K[0, 2], self.K[1, 1], self.K[1, 2]

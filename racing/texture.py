@@ -112,27 +112,39 @@ def _dashes(track: Track, dash: float) -> list[np.ndarray]:
 
 
 def render_ground(
-    track: Track, *, resolution: float = 0.005, rgb: bool = False, margin: float = MARGIN_M
+    track: Track,
+    *,
+    resolution: float = 0.005,
+    rgb: bool = False,
+    margin: float = MARGIN_M,
+    colours: dict[str, tuple[int, int, int]] | None = None,
 ) -> GroundTexture:
     """Paint the track seen from above: floor, road, border lines, centre dashes, start line.
 
     ``resolution`` is metres per pixel (5 mm by default: fine enough for a 160×120 camera
     looking at the ground from 12 cm up). Returns an RGB or grayscale :class:`GroundTexture`.
+    ``colours`` replaces some of the RGB colours (keys ``floor``, ``road``, ``border``,
+    ``centre``, ``start``; :mod:`racing.conditions` paints class codes with it).
     """
+    paint_colours = {"floor": FLOOR_RGB, "road": ROAD_RGB, "border": BORDER_RGB,
+                     "centre": CENTRE_RGB, "start": START_RGB, **(colours or {})}  # fmt: skip
+    floor_rgb, road_rgb, border_rgb, centre_rgb, start_rgb = (
+        paint_colours[k] for k in ("floor", "road", "border", "centre", "start")
+    )
     xmin, ymin, xmax, ymax = track.bounds()
     x0, y1 = xmin - margin, ymax + margin
     width = int(np.ceil((xmax - xmin + 2 * margin) / resolution))
     height = int(np.ceil((ymax - ymin + 2 * margin) / resolution))
     tex = GroundTexture(np.empty(0), x0, y1, resolution)
     image = np.empty((height, width, 3), dtype=np.uint8)
-    image[:] = FLOOR_RGB
+    image[:] = floor_rgb
 
     outer = _fixed(tex.to_pixels(track.outer))
     inner = _fixed(tex.to_pixels(track.inner))
     line_px = max(1, int(round(BORDER_LINE_M / resolution)))
     if track.closed:
-        cv2.fillPoly(image, [outer], BORDER_RGB, cv2.LINE_AA, _SHIFT)
-        cv2.fillPoly(image, [inner], FLOOR_RGB, cv2.LINE_AA, _SHIFT)
+        cv2.fillPoly(image, [outer], border_rgb, cv2.LINE_AA, _SHIFT)
+        cv2.fillPoly(image, [inner], floor_rgb, cv2.LINE_AA, _SHIFT)
         # Road = the outer polygon shrunk by the line width, minus the inner one grown by it.
         road = np.zeros((height, width), dtype=np.uint8)
         cv2.fillPoly(road, [outer], 255, cv2.LINE_AA, _SHIFT)
@@ -143,16 +155,16 @@ def render_ground(
         hole = cv2.dilate(hole, kernel)
         mask = (road.astype(np.int16) - hole.astype(np.int16)).clip(0, 255).astype(np.float32)
         paint = (mask / 255.0)[..., None]
-        image[:] = (image * (1 - paint) + np.array(ROAD_RGB, np.float32) * paint).astype(np.uint8)
+        image[:] = (image * (1 - paint) + np.array(road_rgb, np.float32) * paint).astype(np.uint8)
     else:
         strip = _fixed(tex.to_pixels(np.vstack([track.inner, track.outer[::-1]])))
-        cv2.fillPoly(image, [strip], ROAD_RGB, cv2.LINE_AA, _SHIFT)
+        cv2.fillPoly(image, [strip], road_rgb, cv2.LINE_AA, _SHIFT)
         for border in (inner, outer):
-            cv2.polylines(image, [border], False, BORDER_RGB, 2 * line_px, cv2.LINE_AA, _SHIFT)
+            cv2.polylines(image, [border], False, border_rgb, 2 * line_px, cv2.LINE_AA, _SHIFT)
 
     centre_px = max(1, int(round(CENTRE_LINE_M / resolution)))
     dashes = [_fixed(tex.to_pixels(p)) for p in _dashes(track, CENTRE_DASH_M)]
-    cv2.polylines(image, dashes, False, CENTRE_RGB, centre_px, cv2.LINE_AA, _SHIFT)
+    cv2.polylines(image, dashes, False, centre_rgb, centre_px, cv2.LINE_AA, _SHIFT)
 
     # Start line: across the road at waypoint 0.
     h = track.heading_at(0.0)
@@ -161,7 +173,7 @@ def render_ground(
     nx, ny = -np.sin(h), np.cos(h)
     ends = np.array([[cx - nx * half, cy - ny * half], [cx + nx * half, cy + ny * half]])
     cv2.polylines(
-        image, [_fixed(tex.to_pixels(ends))], False, START_RGB, line_px, cv2.LINE_AA, _SHIFT
+        image, [_fixed(tex.to_pixels(ends))], False, start_rgb, line_px, cv2.LINE_AA, _SHIFT
     )
 
     if not rgb:

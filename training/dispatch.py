@@ -23,7 +23,8 @@ REPLAY_REWARD = "training.tasks.replay_reward"
 VALIDATE_REWARD = "training.tasks.validate_reward"
 IMPORT_MODEL = "training.tasks.import_model"
 EXPORT_CAR_MODEL = "training.tasks.export_car_model"
-JOB_QUEUES = ("training", "evaluation")
+CHECK_READINESS = "training.tasks.check_readiness"
+JOB_QUEUES = ("training", "evaluation", "readiness")
 """Queues whose tasks carry jobs (see console/celery.py's routes)."""
 
 

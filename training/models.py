@@ -68,11 +68,18 @@ class RacingModel(models.Model):
         "self", null=True, blank=True, on_delete=models.SET_NULL, related_name="clones"
     )
     imported = models.BooleanField(default=False)
+    open_to_challenges = models.BooleanField(default=False)
+    """Other racers may pick this model as an opponent on their Races page (a frozen copy of
+    its best checkpoint races; its owner sees who raced it). Off by default."""
     status = models.CharField(max_length=12, choices=Status.choices, default=Status.READY)
     has_checkpoint = models.BooleanField(default=False)
     error = models.TextField(blank=True)
     created_at = models.DateTimeField(default=timezone.now)
     updated_at = models.DateTimeField(auto_now=True)
+    conditions = models.JSONField(default=dict, blank=True)
+    """Training for the world outside: ``racing.conditions.ConditionsSpec.to_dict()`` of the
+    families (light, look, camera, car, latency) every training episode draws its conditions
+    from; {} (the default): off, a clean world. Evaluations stay clean."""
     store_prefix = models.CharField(max_length=96, blank=True, editable=False)
     """The model's folder in the object store, ``u<owner id>-<name>`` (DeepRacer tools read a
     model under its own name), fixed when the row is created; blank for models stored before
@@ -289,6 +296,11 @@ class EvaluationJob(Job):
     log_stamp = models.CharField(max_length=14, blank=True)
     """``YYYYMMDDhhmmss`` (UTC) of DeepRacer-for-Cloud's ``evaluation-<stamp>/`` folder and
     ``EvaluationMetrics-<stamp>.json``; blank for evaluations stored under their id."""
+    conditions = models.JSONField(default=dict, blank=True)
+    """The outside-world conditions the evaluation drives in (``ConditionsSpec.to_dict()``,
+    a league event's setting); {} (the default): the clean world."""
+    conditions_seed = models.PositiveIntegerField(null=True, blank=True)
+    """The seed of those conditions' draws (the event's: every entrant meets the same)."""
 
     def __str__(self) -> str:
         return f"evaluation #{self.pk} of {self.model}"
@@ -332,6 +344,14 @@ class RaceJob(Job):
     """Run at real time (a live race day's broadcast), not as fast as the worker can."""
     broadcast_group = models.CharField(max_length=80, blank=True)
     """A Channels group that gets the live frames besides the race's own (a race day's)."""
+    conditions = models.JSONField(default=dict, blank=True)
+    """The outside-world conditions every car's camera sees (``racing.conditions.Conditions.
+    to_dict()``: one draw, a league event's); {} (the default): the clean world."""
+    opponents = models.ManyToManyField(
+        settings.AUTH_USER_MODEL, blank=True, related_name="challenged_races"
+    )
+    """The owners of the models a racer challenged from the Races page (not the challenger,
+    who is :attr:`owner`): who sees the result row and the replay of the race."""
 
     def __str__(self) -> str:
         return self.title or f"race #{self.pk}"
@@ -343,6 +363,35 @@ class RaceJob(Job):
     @property
     def car_rows(self) -> list[dict]:
         return list(self.results.get("cars", [])) if isinstance(self.results, dict) else []
+
+
+class ReadinessCheck(Job):
+    """A readiness check (issue 51): the model's best checkpoint driven from the start line
+    under each family of conditions at several strengths (``training.rl.readiness``), on its
+    own queue. ``results`` is the table (``ReadinessTable.to_json()``); ``videos`` the cell
+    keys (``light-0_67``) of the worst cells whose MP4 is in the store, under the model's
+    folder (``ModelKeys.video(readiness_video_id(check, key))``)."""
+
+    model = models.ForeignKey(
+        RacingModel, on_delete=models.CASCADE, related_name="readiness_checks"
+    )
+    track_id = models.CharField(max_length=64)
+    direction = models.CharField(max_length=8, choices=Direction.choices, default=Direction.NATIVE)
+    plan = models.JSONField(default=dict, blank=True)
+    """``ReadinessPlan.to_dict()``: families, strengths, laps and episodes per cell, seed."""
+    results = models.JSONField(default=dict, blank=True)
+    verdict = models.CharField(max_length=300, blank=True)
+    ready = models.BooleanField(null=True, blank=True)
+    cells_done = models.PositiveSmallIntegerField(default=0)
+    cells_total = models.PositiveSmallIntegerField(default=0)
+    videos = models.JSONField(default=list, blank=True)
+
+    def __str__(self) -> str:
+        return f"readiness check #{self.pk} of {self.model}"
+
+    @property
+    def cells(self) -> list[dict]:
+        return list(self.results.get("cells", [])) if isinstance(self.results, dict) else []
 
 
 class TrackFile(models.Model):

@@ -28,6 +28,7 @@ from training.services.rewards import reward_validation_run
 from training.worker.common import SIMULATE_EPISODES, simulate_here
 from training.worker.evaluation import run_evaluation_job
 from training.worker.race import run_race_job
+from training.worker.readiness import run_readiness_check
 from training.worker.training import run_training_job
 
 MODEL_QUEUES = frozenset({*dispatch.JOB_QUEUES, "simulation"})
@@ -129,5 +130,16 @@ def _requeue_jobs_of_my_previous_life(sender=None, **kwargs) -> None:
 
 @shared_task(name=dispatch.EVALUATE_RACE, **_JOB_TASK)
 def evaluate_race(self, race_id: int, paced: bool = False) -> str:
-    """A head-to-head race on an evaluation worker (``paced``: at real time, for a race day)."""
-    return run_race_job(race_id, worker=self.request.hostname or "", paced=paced)
+    """A head-to-head race on an evaluation worker (``paced``: at real time, for a race day).
+    The task is a token of the fair order, as a training's is (the slot may run another
+    user's queued race; a race day's race runs on its own token)."""
+    return run_race_job(race_id, worker=self.request.hostname or "", paced=paced,
+                        task_id=self.request.id or "")  # fmt: skip
+
+
+@shared_task(name=dispatch.CHECK_READINESS, **_JOB_TASK)
+def check_readiness(self, check_id: int) -> str:
+    """A readiness check (queue ``readiness``), a token of the fair order as an evaluation's."""
+    return run_readiness_check(
+        check_id, worker=self.request.hostname or "", task_id=self.request.id or ""
+    )

@@ -14,6 +14,7 @@ from console.forms import EvaluateForm
 from console.model_form import HP_LABELS, PPO_ONLY, SAC_ONLY
 from console.race_form import race_initial
 from console.views.owned import owned_evaluation, owned_model, owned_training_job
+from console.views.readiness import readiness_context
 from console.views.service_calls import attempt, attempt_on_form
 from training import catalog, selectors, services
 from training.models import RacingModel
@@ -65,6 +66,7 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
         "evaluations": evaluations,
         "evaluation": evaluations[0] if evaluations else None,
         "evaluate_form": evaluate_form,
+        **readiness_context(model),
     }
     return render(request, "models/detail.html", context, status=status)
 

@@ -107,6 +107,7 @@ def model_create(request: HttpRequest) -> HttpResponse:
             hyperparameters=data["hyperparameters"],
             reward_function=data["reward_function"],
             max_minutes=data["max_minutes"],
+            conditions=data.get("conditions"),
             reward_check="passed",
         ),
     )

@@ -67,8 +67,17 @@ def _gallery(
         layout = TrackLayoutForm(track_choices=choices)
     context = {"nav": "tracks", "rows": rows, "total": len(every), "filter_form": filter_form,
                "upload_form": form, "layout_form": layout, "layout_src": layout_src,
-               **extra}  # fmt: skip
+               **_conditions_strip(request, choices), **extra}  # fmt: skip
     return render(request, "tracks.html", context, status=status)
+
+
+def _conditions_strip(request: HttpRequest, choices: list[tuple[str, str]]) -> dict:
+    """The outside-world strip's track (``?conditions_track=``, else the first) and pictures."""
+    ids = [track_id for track_id, _ in choices]
+    chosen = request.GET.get("conditions_track", "")
+    track_id = chosen if chosen in ids else (ids[0] if ids else "")
+    return {"conditions_track": track_id, "conditions_choices": choices,
+            "conditions_strip": tracks.conditions_samples() if track_id else []}  # fmt: skip
 
 
 @require_safe
@@ -134,6 +143,20 @@ def track_preview(request: HttpRequest, track_id: str) -> HttpResponse:
     response["ETag"] = f'"{preview.etag}"'
     patch_cache_control(response, public=True, max_age=3600)
     # 304 Not Modified when the browser already has these bytes.
+    return get_conditional_response(request, etag=response["ETag"], response=response)
+
+
+@require_safe
+def track_conditions_preview(request: HttpRequest, track_id: str, index: int) -> HttpResponse:
+    """Picture ``index`` of the track's outside-world strip (:func:`tracks.conditions_samples`):
+    the car's camera at the start line under sampled conditions; a PNG."""
+    try:
+        preview = tracks.conditions_preview(track_id, index)
+    except (tracks.UnknownTrackError, IndexError):
+        raise Http404(f"No such picture of track {track_id!r}") from None
+    response = HttpResponse(preview.png, content_type="image/png")
+    response["ETag"] = f'"{preview.etag}"'
+    patch_cache_control(response, public=True, max_age=3600)
     return get_conditional_response(request, etag=response["ETag"], response=response)
 
 

@@ -38,7 +38,8 @@ def test_ping_round_trip_through_a_worker(celery_worker: ChildProcess) -> None:
 
 def test_tasks_route_to_their_queues() -> None:
     router = celery_app.amqp.router
-    assert set(QUEUES) == {"training", "simulation", "evaluation", "interactive", "default"}
+    assert set(QUEUES) == {"training", "simulation", "evaluation", "interactive", "default",
+                           "readiness"}  # fmt: skip
     assert celery_app.conf.task_routes == TASK_ROUTES
     cases = {
         "training.tasks.train_model": "training",
@@ -46,6 +47,7 @@ def test_tasks_route_to_their_queues() -> None:
         "training.tasks.rollout_worker": "simulation",
         "leaderboard.tasks.evaluate_submission": "evaluation",
         "training.tasks.evaluate_race": "evaluation",  # head-to-head races
+        "training.tasks.check_readiness": "readiness",
         "console.tasks.ping": "default",
         # What a page waits for has its own queue: never behind the reaper, nor it behind them.
         "training.tasks.validate_reward": "interactive",

@@ -228,17 +228,33 @@ def test_the_same_seed_gives_the_same_race(oval):
     assert run() == run()
 
 
-def test_the_broadcast_view_draws_every_car_and_the_timing_tower(oval):
+def test_the_broadcast_view_is_the_tv_camera_with_the_map_and_each_racer_s_camera(oval):
     racers = [Racer(action_space=CONTINUOUS, name="Ada"), Racer(action_space=CONTINUOUS, name="Bo")]
     race = HeadToHeadRace(oval, racers, rules=RULES)
-    race.reset()
+    observations = race.reset()
     view = BroadcastView(race, title="Final")
-    frame = view.render()
+    frame = view.render(observations)
     assert frame.shape == (720, 1280, 3) and frame.dtype == np.uint8
-    for car in race.cars:  # each car's colour is on the track
-        assert np.all(frame == car.colour, axis=-1).sum() > 20
+    layout = view.header()["layout"]
+    x, y, w, h = layout["map"]
+    on_map = frame[y : y + h, x : x + w]
+    for car in race.cars:  # each car is a dot of its colour on the map, and in the TV picture
+        assert np.all(on_map == car.colour, axis=-1).sum() > 20
+    assert view.shot is not None and view.shot.car == race.standings()[0].index
+    for pip in layout["pips"]:  # exactly what the model sees, in gray
+        px, py, pw, ph = pip["rect"]
+        picture = frame[py : py + ph, px : px + pw]
+        seen = observations[pip["car"]][..., 0]
+        assert np.array_equal(picture[..., 0], seen) and np.array_equal(picture[..., 1], seen)
+    assert [p["name"] for p in layout["pips"]] == ["Ada", "Bo"]
+    timing = view.header()["timing"]  # the tower is data, not pixels
+    assert [c["name"] for c in timing["cars"]] == [race.standings()[0].racer.name,
+                                                   race.standings()[1].racer.name]  # fmt: skip
+    replay = view.replay_frame(frame)  # the MP4 burns the tower in
+    assert replay.shape == frame.shape and not np.array_equal(replay, frame)
     race.retire(1, "withdrawn")
     assert not np.array_equal(view.render(), frame)
+    assert view.header()["timing"]["cars"][1]["status"] == "retired"
 
 
 @pytest.mark.parametrize(

@@ -105,8 +105,11 @@ class EvaluationReport:
         return {"metrics": self.metrics, "version": 2}
 
     def to_json(self) -> dict:
+        """The results a job stores; ``conditions``: the outside-world conditions driven in
+        (:meth:`racing.conditions.Conditions.to_dict`), when not the clean world."""
+        extra = {"conditions": self.extra["conditions"]} if self.extra.get("conditions") else {}
         return {"laps": [asdict(lap) for lap in self.laps], "completed_laps": self.completed_laps,
-                "stopped": self.stopped, "steps": self.steps}  # fmt: skip
+                "stopped": self.stopped, "steps": self.steps, **extra}  # fmt: skip
 
 
 def _lap_result(lap: LapRecord, settings: EvaluationSettings) -> LapResult:
@@ -257,7 +260,9 @@ def evaluate(
     env = evaluation_env(spec, settings)
     video = VideoWriter() if settings.record_video else None
     chase = ChaseView(ground_for(env.track, resolution=0.01, rgb=True)) if video else None
-    obs, _ = env.reset(seed=0)
+    obs, reset_info = env.reset(seed=0)
+    # The outside-world conditions the episode drew (a league event's), recorded with the laps.
+    drawn = reset_info.get("conditions") if isinstance(reset_info, dict) else None
     grabber = FrameGrabber(env) if on_frame is not None else None
     trace = LapTrace()
     stopped = False
@@ -305,6 +310,7 @@ def evaluate(
         stopped=stopped,
         steps=env.tracker.steps,
         wall_s=time.monotonic() - started,
+        extra={"conditions": drawn} if drawn else {},
     )
 
 

@@ -17,6 +17,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from racing.broadcast import BroadcastView
+from racing.conditions import Conditions
 from racing.headtohead import CarState, HeadToHeadRace, RaceCar, Racer, grid_order
 from racing.race import RaceConfig
 from racing.rules import RaceRules, Status
@@ -166,11 +167,14 @@ def run_race(
     race: RaceConfig | None = None,
     title: str = "",
     should_stop: Callable[[], bool] | None = None,
-    on_frame: Callable[[object, HeadToHeadRace], None] | None = None,
+    on_frame: Callable[[object, dict], None] | None = None,
+    conditions: Conditions | None = None,
 ) -> RaceReport:
     """Race ``entries`` (2-4) on ``track`` (a loop, in its driving direction) with ``race``'s
-    bots, and report. ``on_frame(rgb, race)`` gets each broadcast frame as it is drawn (one
-    drawing serves the MP4 and every live viewer); ``should_stop`` is polled every step."""
+    bots, and report. ``on_frame(rgb, header)`` gets each live broadcast frame as it is drawn
+    with its header (the step's timing, shot and layout: :meth:`BroadcastView.header`); the
+    MP4 gets the same frame with that timing burnt in; ``should_stop`` is polled every step.
+    ``conditions``: the outside world every car's camera sees (a league event's; None: clean)."""
     refuse_if_tainted("A race")  # the judge never shares a process with user code
     started = time.monotonic()
     grid = grid_order(len(entries), settings.round)
@@ -181,6 +185,7 @@ def run_race(
         race=race,
         seed=settings.seed,
         grid=grid,
+        conditions=conditions,
     )
     drawing = settings.record_video or on_frame is not None
     view = BroadcastView(contest, title=title) if drawing else None
@@ -198,16 +203,16 @@ def run_race(
             for i, outcome in enumerate(contest.step(actions)):
                 if outcome is not None:
                     traces[i].add(outcome.trace, finished=outcome.lap_finished, done=outcome.done)
-            if view is not None:
-                frame = view.render()
+            observations = contest.observations()
+            if view is not None:  # one timing and one picture a step: the MP4 and live
+                frame = view.render(observations)
                 if video is not None:
-                    video.add_frame(frame)
+                    video.add_frame(view.replay_frame(frame))
                 if on_frame is not None:
-                    on_frame(frame, contest)
+                    on_frame(frame, view.header())
             if should_stop is not None and should_stop():
                 stopped = True
                 break
-            observations = contest.observations()
         cars = [_car_report(contest, car, entries[car.index], traces[car.index], position)
                 for position, car in enumerate(contest.standings(), start=1)]  # fmt: skip
     finally:

@@ -77,6 +77,8 @@ class TrainingConfig:
     process: 1.3 against 2.8 ms on a 2-core AMD EPYC)."""
     device: str = "auto"
     """Where the trainer's networks live (:func:`~training.rl.algorithms.resolve_device`)."""
+    lagged_rollout: bool = False
+    """An experiment, off: :attr:`~training.rollout.experience.ExperienceRequest.lagged_rollout`."""
 
 
 @dataclass
@@ -146,13 +148,14 @@ def update_threads(threads: int, spare: int) -> int:
 
 def evaluation_spec(config: TrainingConfig) -> EnvSpec:
     """The env of evaluation episodes: the training env, or from the start line for a
-    several-lap evaluation."""
+    several-lap evaluation; always in the clean world (the outside-world conditions are for
+    training episodes only: the best checkpoint is the best in the world it races in)."""
     if config.eval_laps > 1 or config.eval_from_start_line:
         return EnvSpec.from_json(
             {**config.spec.to_json(), "start": "start_line", "alternate_direction": False,
              "rules": {**config.spec.rules, "laps": config.eval_laps}}
-        )  # fmt: skip
-    return config.spec
+        ).clean()  # fmt: skip
+    return config.spec.clean()
 
 
 def experience_request(config: TrainingConfig) -> ExperienceRequest:
@@ -164,7 +167,7 @@ def experience_request(config: TrainingConfig) -> ExperienceRequest:
         num_envs=config.num_envs, eval_episodes=config.eval_episodes,
         spread_eval_starts=config.eval_laps == 1 and not config.eval_from_start_line,
         seed=config.seed, reward_source=config.reward_source,
-        reward_function=config.reward_function,
+        reward_function=config.reward_function, lagged_rollout=config.lagged_rollout,
     )  # fmt: skip
 
 

@@ -53,6 +53,12 @@ class EnvSpec:
     """``(track id, SHA-256 of its file)`` of the imported tracks the run drives: what identifies
     a track's content on every machine (``track_dirs`` is only where this machine keeps them);
     an env whose local copy differs is not built (:meth:`make`)."""
+    conditions: dict = field(default_factory=dict)
+    """Training for the world outside: :meth:`racing.conditions.ConditionsSpec.to_dict` of the
+    families each episode draws its conditions from; empty = the clean world."""
+    conditions_seed: int | None = None
+    """The seed of the conditions' draws (a league event's: every entrant meets the same
+    sequence); None: each env draws from its own seeded generator."""
 
     def to_json(self) -> dict:
         data = asdict(self)
@@ -69,6 +75,7 @@ class EnvSpec:
         data["sensors"] = tuple(data.get("sensors", ("FRONT_FACING_CAMERA",)))
         data["tracks"] = tuple((str(t), str(d)) for t, d in data.get("tracks", ()))
         data["track_hashes"] = tuple((str(t), str(h)) for t, h in data.get("track_hashes", ()))
+        data["conditions"] = dict(data.get("conditions") or {})
         return cls(**data)
 
     def track_list(self) -> tuple[tuple[str, str], ...]:
@@ -82,6 +89,10 @@ class EnvSpec:
             return self
         track, direction = self.tracks[index % len(self.tracks)]
         return replace(self, track=track, direction=direction, tracks=())
+
+    def clean(self) -> EnvSpec:
+        """The same spec in the clean world (no outside-world conditions): evaluations."""
+        return replace(self, conditions={}, conditions_seed=None) if self.conditions else self
 
     def make(
         self, reward_function: Callable[[dict], float] | None = None, **overrides
@@ -107,6 +118,9 @@ class EnvSpec:
             "race": self.race or None,
             "reward_function": reward_function,
         }
+        if self.conditions:
+            kwargs["conditions"] = self.conditions
+            kwargs["conditions_seed"] = self.conditions_seed
         kwargs.update(overrides)
         return RacingEnv(track, **kwargs)
 

@@ -19,8 +19,10 @@ DeepRacer-on-AWS's issue #87 is the failure this prevents: one user's queue of j
 front of everyone else's while capacity sits idle.
 
 A league submission's evaluation is an evaluation of its submitter's model, so it takes its
-turn here beside their own. Races (league head-to-head, race days) keep their own first-come
-order: a facilitator decides it. Quotas (``RACECRAFT_MAX_ACTIVE_JOBS_PER_USER``) are checked
+turn here beside their own. Races are dealt the same way among the users they are charged to
+(:attr:`RaceJob.owner`: a racer's races from the Races page, a community event's organiser's),
+except a race day's (``paced``): a facilitator put it on track now, so its own token runs it
+and no other token takes it. Quotas (``RACECRAFT_MAX_ACTIVE_JOBS_PER_USER``) are checked
 when a job is queued (:mod:`training.services.jobs`) and hold whatever order the jobs run in;
 they count every job a user causes: training, evaluations (their own and their submissions'),
 and the races charged to them (a community race's, to its organiser).
@@ -37,37 +39,51 @@ from training.models import (
     RUNNING_JOB_STATUSES,
     EvaluationJob,
     JobStatus,
+    RaceJob,
+    ReadinessCheck,
     TrainingJob,
 )
 
-FAIR_KINDS = (TrainingJob, EvaluationJob)
-"""The kinds of job a token may swap within (a race keeps its own order)."""
+FAIR_KINDS = (TrainingJob, EvaluationJob, RaceJob, ReadinessCheck)
+"""The kinds of job a token may swap within (a race day's race keeps its own token)."""
 MAX_WAITING = 2000
 """How many queued jobs the order looks at (quotas keep the queue far shorter)."""
 
 
-def fair_order(job_model: type[TrainingJob] | type[EvaluationJob]) -> list[int]:
-    """The queued jobs of ``job_model``, fairest first (see the module's rules)."""
-    waiting = list(
-        job_model.objects.filter(status=JobStatus.QUEUED)
-        .order_by("created_at", "pk")
-        .values_list("pk", "model__owner_id", "created_at")[:MAX_WAITING]
-    )
+def _owner_field(job_model) -> str:
+    """The user a job of ``job_model`` is charged to: a race's owner, else its model's."""
+    return "owner_id" if job_model is RaceJob else "model__owner_id"
+
+
+def fair_order(job_model: type[TrainingJob] | type[EvaluationJob] | type[RaceJob]) -> list[int]:
+    """The queued jobs of ``job_model``, fairest first (see the module's rules); a race day's
+    races (``paced``) are not in it."""
+    owner_of = _owner_field(job_model)
+    queued = job_model.objects.filter(status=JobStatus.QUEUED)
+    if job_model is RaceJob:
+        queued = queued.filter(paced=False)
+    waiting = [
+        (pk, owner or 0, created)  # 0: a race charged to nobody (a public event's)
+        for pk, owner, created in queued.order_by("created_at", "pk").values_list(
+            "pk", owner_of, "created_at"
+        )[:MAX_WAITING]
+    ]
     if not waiting:
         return []
     oldest: dict[int, object] = {}
     for _, owner, created in waiting:
         oldest.setdefault(owner, created)
+    users = [owner for owner in oldest if owner]
     started = job_model.objects.filter(
-        model__owner_id__in=list(oldest),
+        **{f"{owner_of}__in": users},
         started_at__isnull=False,
         started_at__gte=min(oldest.values()),
-    ).values_list("model__owner_id", "started_at")
+    ).values_list(owner_of, "started_at")
     turns = Counter(owner for owner, at in started if at >= oldest[owner])
     running = Counter(
         job_model.objects.filter(
-            model__owner_id__in=list(oldest), status__in=RUNNING_JOB_STATUSES
-        ).values_list("model__owner_id", flat=True)
+            **{f"{owner_of}__in": users}, status__in=RUNNING_JOB_STATUSES
+        ).values_list(owner_of, flat=True)
     )
     place: Counter[int] = Counter()  # the job's place among its owner's waiting jobs
     keyed = []

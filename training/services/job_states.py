@@ -12,13 +12,20 @@ from django.db.models import Q
 
 from training import dispatch, live
 from training.errors import ServiceError
-from training.models import ACTIVE_JOB_STATUSES, EvaluationJob, RaceJob, RacingModel, TrainingJob
+from training.models import (
+    ACTIVE_JOB_STATUSES,
+    EvaluationJob,
+    RaceJob,
+    RacingModel,
+    ReadinessCheck,
+    TrainingJob,
+)
 from training.services.checks import limit
 from training.signals import evaluation_finished, race_finished
 
 log = logging.getLogger(__name__)
-Job = TrainingJob | EvaluationJob | RaceJob
-JOB_MODELS: tuple[type[Job], ...] = (TrainingJob, EvaluationJob, RaceJob)
+Job = TrainingJob | EvaluationJob | RaceJob | ReadinessCheck
+JOB_MODELS: tuple[type[Job], ...] = (TrainingJob, EvaluationJob, RaceJob, ReadinessCheck)
 """Every kind of job the reaper looks after."""
 
 
@@ -77,6 +84,7 @@ def model_has_active_jobs(model: RacingModel) -> bool:
     return (
         model.training_jobs.filter(status__in=ACTIVE_JOB_STATUSES).exists()
         or model.evaluations.filter(status__in=ACTIVE_JOB_STATUSES).exists()
+        or model.readiness_checks.filter(status__in=ACTIVE_JOB_STATUSES).exists()
     )
 
 
@@ -84,6 +92,8 @@ def job_kind(job: Job) -> str:
     """``"training"``, ``"evaluation"`` or ``"race"``: the job's live group."""
     if isinstance(job, RaceJob):
         return "race"
+    if isinstance(job, ReadinessCheck):
+        return "readiness"
     return "training" if isinstance(job, TrainingJob) else "evaluation"
 
 
@@ -166,4 +176,6 @@ def gave_up_error(job: Job) -> str:
 def task_name(job: Job) -> str:
     if isinstance(job, RaceJob):
         return dispatch.EVALUATE_RACE
+    if isinstance(job, ReadinessCheck):
+        return dispatch.CHECK_READINESS
     return dispatch.TRAIN_MODEL if isinstance(job, TrainingJob) else dispatch.EVALUATE_MODEL

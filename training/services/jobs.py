@@ -37,10 +37,12 @@ from training.models import (
     JobStatus,
     RaceJob,
     RacingModel,
+    ReadinessCheck,
     TrainingJob,
 )
 from training.rl.evaluation import EvaluationError, EvaluationSettings
 from training.services.checks import check_track, limit
+from training.services.conditions import conditions_check
 from training.services.job_reaper import (
     jobs_fail_for_worker,
     jobs_reap_orphans,
@@ -119,6 +121,7 @@ def _active_job_count(user) -> int:
         TrainingJob.objects.filter(model__owner=user, status__in=ACTIVE_JOB_STATUSES).count()
         + EvaluationJob.objects.filter(model__owner=user, status__in=ACTIVE_JOB_STATUSES).count()
         + RaceJob.objects.filter(owner=user, status__in=ACTIVE_JOB_STATUSES).count()
+        + ReadinessCheck.objects.filter(model__owner=user, status__in=ACTIVE_JOB_STATUSES).count()
     )
 
 
@@ -188,11 +191,15 @@ def evaluation_start(
     crash_penalty_s: float = 5.0,
     purpose: str = "user",
     enqueue: bool = True,
+    conditions: dict | None = None,
+    conditions_seed: int | None = None,
 ) -> EvaluationJob:
     """Queue an evaluation of a trained model (3-5 laps, DeepRacer's penalties) in a race of
     ``race_type`` with ``race_config``'s boxes or bots (see :mod:`training.services.racing`;
     ``race_type`` None: the model's own race and settings); ``enqueue=False`` leaves it for
-    the caller to run in its own process. Every ``purpose`` counts against the model owner's
+    the caller to run in its own process. ``conditions`` (a league event's outside-world
+    setting, drawn from ``conditions_seed``): the world it drives in; None: the clean world.
+    Every ``purpose`` counts against the model owner's
     job quota (a league submission's evaluation is its submitter's job): raises
     :class:`JobQuotaError` when it is full."""
     owned(model, user)
@@ -203,6 +210,7 @@ def evaluation_start(
     if race_type is None:
         race_type, race_config = model.race_type, model.race_config
     race = race_settings(race_type, race_config)
+    world = conditions_check(conditions)
     try:
         EvaluationSettings(laps=laps, off_track_penalty_s=off_track_penalty_s,
                            crash_penalty_s=crash_penalty_s)  # fmt: skip
@@ -219,7 +227,8 @@ def evaluation_start(
         job = EvaluationJob.objects.create(
             model=model, track_id=track_id, direction=direction, race_type=race_type,
             race_config=race, laps=laps, off_track_penalty_s=off_track_penalty_s,
-            crash_penalty_s=crash_penalty_s, purpose=purpose,
+            crash_penalty_s=crash_penalty_s, purpose=purpose, conditions=world,
+            conditions_seed=conditions_seed if world else None,
         )  # fmt: skip
         model.status = RacingModel.Status.EVALUATING
         model.save(update_fields=["status", "updated_at"])

@@ -11,6 +11,8 @@ from training.errors import ServiceError
 from training.interchange.layout import RaceKeys
 from training.models import RacingModel
 from training.rl.metadata import ModelMetadata, build_metadata
+from training.services.conditions import PARAMS_KEY as CONDITIONS_KEY
+from training.services.conditions import conditions_param
 from training.storage import StoreError, StoreUnavailable
 from training.store import get_store, keys_for
 
@@ -36,7 +38,8 @@ TRAINING_PARAMS = "ip/training_params.yaml"
 
 
 def training_params(model: RacingModel) -> str:
-    """DeepRacer's ``training_params.yaml`` keys for the model's environment, plus ours."""
+    """DeepRacer's ``training_params.yaml`` keys for the model's environment, plus ours
+    (``RACECRAFT_*``, which DeepRacer's tools ignore; the outside-world setting as JSON)."""
     lines = {
         "WORLD_NAME": model.track_id,
         "RACE_TYPE": model.race_type,
@@ -47,7 +50,10 @@ def training_params(model: RacingModel) -> str:
     }
     if model.extra_tracks:  # multi-track training: every track:direction the cars are dealt
         lines["RACECRAFT_TRACKS"] = ",".join(f"{t}:{d}" for t, d in model.training_tracks)
-    return "".join(f'{key}: "{value}"\n' for key, value in lines.items())
+    text = "".join(f'{key}: "{value}"\n' for key, value in lines.items())
+    if conditions := conditions_param(model.conditions):  # one line of JSON, single-quoted
+        text += f"{CONDITIONS_KEY}: '{conditions}'\n"
+    return text
 
 
 def model_metadata(model: RacingModel) -> ModelMetadata:

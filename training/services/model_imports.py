@@ -20,6 +20,8 @@ from training.services.checks import (
     check_track,
     track_catalog,
 )
+from training.services.conditions import PARAMS_KEY as CONDITIONS_KEY
+from training.services.conditions import conditions_from_param
 from training.services.models import _all_or_nothing, model_create
 from training.services.trackfiles import tracks_sync
 from training.store import get_store, keys_for
@@ -29,8 +31,9 @@ def model_import(*, owner, name: str, upload, description: str = "") -> RacingMo
     """A model from an uploaded archive: Racecraft's virtual model, or a DeepRacer model (the
     car's archive, the AWS console's virtual model, a DeepRacer-for-Cloud model folder),
     validated; its weights become a Racecraft checkpoint without unpickling anything. Its
-    track, direction, seed and stop condition come from the archive's ``training_params.yaml``
-    when it has one; ``model.import_note`` says what could not be kept (an unknown track)."""
+    track, direction, seed, stop condition and outside-world setting come from the archive's
+    ``training_params.yaml`` when it has one; ``model.import_note`` says what could not be
+    kept (an unknown track)."""
     check_name(owner, name)
     check_model_quota(owner)
     tracks_sync()  # the archive's WORLD_NAME may be a track imported on another machine
@@ -62,6 +65,7 @@ def model_import(*, owner, name: str, upload, description: str = "") -> RacingMo
             max_minutes=minutes,
             validate_reward=False,
             extra_tracks=extra_tracks,
+            conditions=conditions_from_param(params.get(CONDITIONS_KEY, "")),
         )
         created.append(model.pk)
         model.import_note = note  # for the caller to show; not stored

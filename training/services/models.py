@@ -43,6 +43,7 @@ from training.services.checks import (
     check_model_spec,
     check_name,
 )
+from training.services.conditions import conditions_check
 from training.services.jobs import model_has_active_jobs, owned
 from training.services.model_files import (
     TRAINING_PARAMS,
@@ -117,14 +118,17 @@ def model_create(
     validate_reward: bool = True,
     reward_check: str = "sandbox",
     extra_tracks: list | tuple = (),
+    conditions: dict | None = None,
 ) -> RacingModel | RewardCheck:
     """A new model, validated end to end; its reward function is checked on each of its
     tracks as ``reward_check`` says (the module's docstring: ``"passed"`` from the web),
     ``validate_reward=False`` is ``reward_check="none"``. ``extra_tracks``: ``(track_id,
     direction)`` pairs trained on beside ``track_id`` (multi-track training,
-    :func:`check_extra_tracks`). Raises ServiceError or RewardRejected; with ``"passed"``, a
-    reward function not saved is answered with its :class:`RewardCheck` instead (the first
-    track without a passed validation is being validated: the page posts again)."""
+    :func:`check_extra_tracks`). ``conditions``: training for the world outside
+    (:mod:`training.services.conditions`; None or {}: off). Raises ServiceError or
+    RewardRejected; with ``"passed"``, a reward function not saved is answered with its
+    :class:`RewardCheck` instead (the first track without a passed validation is being
+    validated: the page posts again)."""
     check_name(owner, name)
     if len(description) > 255:
         raise ServiceError("the description is at most 255 characters", field="description")
@@ -135,13 +139,14 @@ def model_create(
         neural_network=neural_network, hyperparameters=hyperparameters, max_minutes=max_minutes,
     )  # fmt: skip
     extra = check_extra_tracks(track_id, direction, extra_tracks)
+    world = conditions_check(conditions)
     how = reward_check if validate_reward else "none"
     tracks = [(spec.track_id, spec.direction), *((t, d) for t, d in extra)]
     check = reward_check_before_save(user=owner, source=reward_function, tracks=tracks, how=how)
     if (not_saved := _not_saved(check, how)) is not None:
         return not_saved
     with _all_or_nothing() as created:
-        model = _create_row(owner, name, description, spec, reward_function, seed, extra)
+        model = _create_row(owner, name, description, spec, reward_function, seed, extra, world)
         created.append(model.pk)
         _store_model_files(model)
     return model
@@ -157,7 +162,9 @@ def _not_saved(check: RewardCheck, how: str) -> RewardCheck | None:
     return check
 
 
-def _create_row(owner, name, description, spec, reward_function, seed, extra) -> RacingModel:
+def _create_row(
+    owner, name, description, spec, reward_function, seed, extra, conditions
+) -> RacingModel:
     return RacingModel.objects.create(
         owner=owner,
         name=name,
@@ -176,6 +183,7 @@ def _create_row(owner, name, description, spec, reward_function, seed, extra) ->
         reward_function=reward_function,
         max_minutes=spec.max_minutes,
         seed=seed if seed is not None else random.randrange(2**31),
+        conditions=conditions,
         status=RacingModel.Status.READY,
     )
 
@@ -194,9 +202,11 @@ def model_clone(
     action_space: list | dict | None = None,
     checkpoint: str = "best",
     reward_check: str = "sandbox",
+    conditions: dict | None = None,
 ) -> RacingModel | RewardCheck:
     """A new model that starts from ``model``'s best (or last) checkpoint. Algorithm, network,
-    sensors, action-space type and number of actions stay as they were.
+    sensors, action-space type and number of actions stay as they were; the outside-world
+    setting too, unless ``conditions`` is given ({}: off).
 
     A model without a checkpoint (never trained, or failed before its first one) is copied
     as a fresh model: the same configuration, trained from scratch, with no parent. The reward
@@ -238,6 +248,7 @@ def model_clone(
             ),
             max_minutes=max_minutes or model.max_minutes,
             reward_check=reward_check,
+            conditions=dict(model.conditions or {}) if conditions is None else conditions,
         )
         if isinstance(clone, RewardCheck):
             return clone  # nothing written: the reward function waits for its validation

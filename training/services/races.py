@@ -17,6 +17,7 @@ from training.errors import ServiceError
 from training.models import RaceJob, RacingModel
 from training.rl.race import RaceError, RaceSettings
 from training.services.checks import track_catalog
+from training.services.conditions import conditions_drawn_check
 from training.services.job_states import enqueue_after_commit
 from training.services.jobs import job_quota_hold
 from training.services.model_files import model_metadata
@@ -124,13 +125,16 @@ def race_start_entries(
     paced: bool = False,
     broadcast_group: str = "",
     charged_to=None,
+    world: dict | None = None,
     **conditions,
 ) -> RaceJob:
     """Queue a league race of entries already frozen by the league (``{"model", "name",
     "checkpoint", "metadata", "tag"}``: the model may be deleted since, the race does not
     need it); the league checked who may run it. ``charged_to``: the user whose job quota
     the race counts against (its owner; a community event's organiser), or None (a public
-    event's: the operator's own league). Raises :class:`ServiceError`, and
+    event's: the operator's own league). ``world``: the outside-world conditions every car's
+    camera sees (one draw, ``Conditions.to_dict()``; a league event's), None: clean. Raises
+    :class:`ServiceError`, and
     :class:`~training.services.jobs.JobQuotaError` when ``charged_to`` has no job to spare
     (nothing is queued then)."""
     if not MIN_RACERS <= len(entries) <= MAX_RACERS:
@@ -139,7 +143,8 @@ def race_start_entries(
     direction = conditions.get("direction", "native")
     return _create(entries=entries, track_id=track_id, direction=direction, race=race,
                    settings=settings, user=charged_to, title=title, purpose="league", paced=paced,
-                   broadcast_group=broadcast_group, enqueue=True)  # fmt: skip
+                   broadcast_group=broadcast_group, enqueue=True,
+                   world=conditions_drawn_check(world))  # fmt: skip
 
 
 def race_start(
@@ -181,7 +186,7 @@ def race_start(
 
 def _create(*, entries: list[dict], track_id: str, direction: str, race: RaceConfig,
             settings: RaceSettings, user, title: str, purpose: str, paced: bool,
-            broadcast_group: str, enqueue: bool) -> RaceJob:  # fmt: skip
+            broadcast_group: str, enqueue: bool, world: dict | None = None) -> RaceJob:  # fmt: skip
     owner = user if getattr(user, "pk", None) else None
     with transaction.atomic():
         if owner is not None and enqueue:  # a race run here by the command line is not queued
@@ -194,7 +199,7 @@ def _create(*, entries: list[dict], track_id: str, direction: str, race: RaceCon
             seed=settings.seed, round_number=settings.round,
             off_track_penalty_s=settings.off_track_penalty_s,
             crash_penalty_s=settings.crash_penalty_s, time_limit_s=settings.time_limit_s,
-            paced=paced, broadcast_group=broadcast_group[:80],
+            paced=paced, broadcast_group=broadcast_group[:80], conditions=world or {},
         )  # fmt: skip
         if enqueue:
             enqueue_after_commit(job, dispatch.EVALUATE_RACE)

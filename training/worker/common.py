@@ -90,9 +90,13 @@ def env_spec(
     track_id: str | None = None,
     direction: str | None = None,
     race: RaceConfig | None = None,
+    conditions: dict | None = None,
+    conditions_seed: int | None = None,
 ) -> EnvSpec:
     """The simulator a job of ``model`` drives: its own tracks (all of them for a model that
-    trains on several) and race, or the track and race given. Imported tracks are written into
+    trains on several) and race, or the track and race given; in the clean world unless
+    ``conditions`` are given (a training job passes the model's outside-world setting, a league
+    event's evaluation the event's, with its ``conditions_seed``). Imported tracks are written into
     this machine's folder first (:func:`~training.services.tracks_sync_for`): a worker may share no
     disk with the web that took the upload."""
     if race is None:
@@ -110,6 +114,8 @@ def env_spec(
         race=race.to_dict() if race.race_type is not RaceType.TIME_TRIAL else {},
         tracks=tracks,
         track_hashes=track_hashes(driven),
+        conditions=dict(conditions or {}),
+        conditions_seed=conditions_seed if conditions else None,
     )
 
 

@@ -64,6 +64,8 @@ def run_evaluation_job(evaluation_id: int, worker: str = "", task_id: str = "") 
                     track_id=job.track_id,
                     direction=job.direction,
                     race=race_config(job.race_type, job.race_config),
+                    conditions=job.conditions,  # {}: clean, unless a league event says
+                    conditions_seed=job.conditions_seed,
                 ),
                 settings,
                 on_progress=on_progress,

@@ -264,7 +264,7 @@ def run_training_job(job_id: int, worker: str = "", task_id: str = "") -> str:
         # A resumed job trains for the time it has left.
         max_minutes = max(0.5, job.max_minutes - hooks._elapsed_offset / 60)
         config = TrainingConfig(
-            spec=env_spec(model),
+            spec=env_spec(model, conditions=model.conditions),  # the world outside, if on
             algorithm=model.algorithm,
             network=model.neural_network,
             hyperparameters=parse_hyperparameters(model.hyperparameters, model.algorithm),

@@ -29,6 +29,7 @@ from training.rewards.examples import example_source
 from training.rl.metadata import MetadataError, ModelMetadata, build_metadata, parse_metadata
 from training.rl.presets import PRESETS, Preset, preset
 from training.selectors import user_by_username
+from training.services import conditions as services_conditions
 
 
 def read_bytes(path: str, what: str) -> bytes:
@@ -55,6 +56,31 @@ def track_and_direction(text: str) -> tuple[str, str]:
             f"{', '.join(Direction.values)}"
         )
     return track, direction
+
+
+def condition_range(text: str) -> tuple[str, tuple[float, float]]:
+    """``FAMILY.PARAMETER=LOW:HIGH`` (or ``=VALUE``) from ``--condition``."""
+    key, sep, value = text.partition("=")
+    low, colon, high = value.partition(":")
+    try:
+        if not sep or not key.strip() or "." not in key:
+            raise ValueError
+        bounds = (float(low), float(high if colon else low))
+    except ValueError:
+        raise CommandError(
+            f"--condition {text!r}: give FAMILY.PARAMETER=LOW:HIGH, e.g. light.brightness=-20:20"
+        ) from None
+    return key.strip(), bounds
+
+
+def given_conditions(options: dict) -> dict:
+    """The outside-world setting from ``--conditions`` and ``--condition`` ({}: off)."""
+    families = [f for f in (options.get("conditions") or "").split(",") if f.strip()]
+    ranges = dict(condition_range(text) for text in options.get("condition") or ())
+    try:
+        return services_conditions.conditions_build(families, ranges)
+    except services.ServiceError as exc:
+        raise CommandError(f"--conditions: {exc.message}") from None
 
 
 def preset_metadata(chosen: Preset) -> ModelMetadata:
@@ -169,6 +195,21 @@ class Command(BaseCommand):
         )
         add_sensor_argument(parser)
         add_race_arguments(parser, evaluation=False)
+        parser.add_argument(
+            "--conditions",
+            metavar="FAMILY[,FAMILY...]",
+            help="training for the world outside (off by default): each training episode "
+            "draws its conditions from these families, each parameter over its training range: "
+            "light, look, camera, car, latency (e.g. --conditions light,camera)",
+        )
+        parser.add_argument(
+            "--condition",
+            action="append",
+            default=[],
+            metavar="FAMILY.PARAMETER=LOW:HIGH",
+            help="narrow one parameter's range of a family turned on with --conditions "
+            "(repeatable), e.g. --condition light.brightness=-20:20",
+        )
 
     def handle(self, *args: Any, **options: Any) -> None:
         chosen = preset(options["preset"]) if options["preset"] else None
@@ -192,6 +233,7 @@ class Command(BaseCommand):
             hyperparameters = chosen.hyperparameters.to_json()
         extra_tracks = [track_and_direction(t) for t in options["also_train_on"]]
         race_type = race_type_option(options) or RaceType.TIME_TRIAL
+        conditions = given_conditions(options)
         with race_errors(options):
             owner = user_by_username(username=options["owner"])
             model = services.model_create(
@@ -211,16 +253,19 @@ class Command(BaseCommand):
                 reward_function=reward,
                 max_minutes=options["minutes"],
                 seed=options["seed"],
+                conditions=conditions,
             )
         if options["verbosity"] == 0:
             self.stdout.write(str(model.pk))
             return
+        families = services_conditions.conditions_families(model.conditions)
+        world = f", outside world: {', '.join(families)}" if families else ""
         self.stdout.write(
             f"Created model {model.pk}: {model.name} ({model.algorithm}, {action_summary(model)}, "
             f"{', '.join(model.sensors)}, {model.neural_network}) on "
             f"{' + '.join(f'{t} ({d})' for t, d in model.training_tracks)}, "
             f"{race_summary(model.race_type, model.race_config)}, "
-            f"{model.max_minutes} min of training"
+            f"{model.max_minutes} min of training{world}"
         )
         advice = services.sensor_advice(model.race_type, model.sensors)
         if advice:

@@ -1,0 +1,17 @@
+"""``{{ model.conditions|conditions_summary }}``: a stored outside-world setting as rows a page
+shows (:func:`training.services.conditions.conditions_summary`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from django import template
+
+from training.services.conditions import conditions_summary as _summary
+
+register = template.Library()
+
+
+@register.filter
+def conditions_summary(value: Mapping | None) -> list[dict]:
+    return _summary(value if isinstance(value, Mapping) else None)
