@@ -13,7 +13,7 @@ from console import tracks
 from console.forms import EvaluateForm
 from console.model_form import HP_LABELS, PPO_ONLY, SAC_ONLY
 from console.race_form import race_initial
-from console.views.owned import owned_evaluation, owned_model, owned_training_job
+from console.views.owned import owned_evaluation, owned_model, owned_training_job, say_queued
 from console.views.readiness import readiness_context
 from console.views.service_calls import attempt, attempt_on_form
 from training import catalog, selectors, services
@@ -86,17 +86,8 @@ def training_start(request: HttpRequest, model_id: int) -> HttpResponse:
     except services.ServiceError as exc:
         messages.error(request, exc.sentence)
     else:
-        _say_queued(request, job, "Training queued: it starts as soon as a worker is free.")
+        say_queued(request, job, "Training queued: it starts as soon as a worker is free.")
     return redirect("model-detail", model_id=model.pk)
-
-
-def _say_queued(request: HttpRequest, job: object, success: str) -> None:
-    """The confirmation, or, when the task queue could not be reached, that the job waits."""
-    note = getattr(job, "dispatch_note", "")
-    if note:
-        messages.warning(request, f"{success.split(':')[0].rstrip('.')}, but {note}.")
-    else:
-        messages.success(request, success)
 
 
 @login_required
@@ -130,7 +121,7 @@ def evaluation_start(request: HttpRequest, model_id: int) -> HttpResponse:
             ),
         )
         if job is not None:
-            _say_queued(request, job, "Evaluation queued.")
+            say_queued(request, job, "Evaluation queued.")
             return redirect(f"/models/{model.pk}/#evaluation")
     return _page(request, model, evaluate_form=form, status=400)
 

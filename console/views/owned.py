@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from django.contrib import messages
 from django.http import Http404, HttpRequest
 
 from training import selectors
@@ -27,3 +28,12 @@ def owned_evaluation(request: HttpRequest, evaluation_id: int) -> EvaluationJob:
         return selectors.evaluation_for_owner(request.user, evaluation_id)
     except EvaluationJob.DoesNotExist:
         raise Http404("No such evaluation") from None
+
+
+def say_queued(request: HttpRequest, job: object, success: str) -> None:
+    """The confirmation, or, when the task queue could not be reached, that the job waits."""
+    note = getattr(job, "dispatch_note", "")
+    if note:
+        messages.warning(request, f"{success.split(':')[0].rstrip('.')}, but {note}.")
+    else:
+        messages.success(request, success)

@@ -9,7 +9,7 @@ from django.http import Http404, HttpRequest, HttpResponse
 from django.shortcuts import redirect, render
 from django.views.decorators.http import require_http_methods, require_POST
 
-from console.views.owned import owned_model
+from console.views.owned import owned_model, say_queued
 from training import services
 from training.http import media_response
 from training.models import RacingModel, ReadinessCheck
@@ -42,11 +42,7 @@ def readiness_start(request: HttpRequest, model_id: int) -> HttpResponse:
     except services.ServiceError as exc:
         messages.error(request, exc.sentence)
     else:
-        note = getattr(check, "dispatch_note", "")
-        if note:
-            messages.warning(request, f"Readiness check queued, but {note}.")
-        else:
-            messages.success(request, "Readiness check queued.")
+        say_queued(request, check, "Readiness check queued.")
     return redirect(f"/models/{model.pk}/#readiness")
 
 
