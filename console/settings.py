@@ -24,6 +24,7 @@ from django.core.exceptions import ImproperlyConfigured
 from console.env import envbool, envint, envlist, envstr
 from console.redisconf import cache_settings, celery_settings, channel_layers
 from training.bucket import DEFAULT_BUCKET, StoreError, check_bucket_name
+from training.outbound_allow import parse_allow_entries
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 # Runtime state (SQLite file, embedded Redis socket, local object store); git-ignored.
@@ -366,14 +367,10 @@ RATELIMIT_IP_META_KEY = "console.throttle.client_ip"
 # of a DeepRacer-for-Cloud install (minio.lan, 192.168.1.20, 10.0.0.0/24, localhost). Every
 # racer may then reach them: list only servers meant for that. Empty by default.
 RACECRAFT_OUTBOUND_ALLOW = envlist("RACECRAFT_OUTBOUND_ALLOW")
-for _entry in RACECRAFT_OUTBOUND_ALLOW:
-    try:
-        ipaddress.ip_network(_entry.strip("[]"), strict=False)
-    except ValueError:
-        if not re.fullmatch(r"[A-Za-z0-9_]([A-Za-z0-9_.-]{0,252})", _entry):
-            raise ImproperlyConfigured(
-                f"RACECRAFT_OUTBOUND_ALLOW: {_entry!r} is not a host name, address or network"
-            ) from None
+try:  # the guarded client's own parser (training/outbound_allow.py), so both agree
+    parse_allow_entries(RACECRAFT_OUTBOUND_ALLOW)
+except ValueError as _exc:
+    raise ImproperlyConfigured(f"RACECRAFT_OUTBOUND_ALLOW: {_exc}") from None
 
 LOGGING = {
     "version": 1,

@@ -111,6 +111,11 @@ urlpatterns = [
     ),
     path("readiness/<int:check_id>/stop/", readiness_views.readiness_stop, name="readiness-stop"),
     path(
+        "readiness/<int:check_id>/progress.json",
+        readiness_views.readiness_progress,
+        name="readiness-progress",
+    ),
+    path(
         "readiness/<int:check_id>/video/<slug:key>.mp4",
         readiness_views.readiness_video,
         name="readiness-video",

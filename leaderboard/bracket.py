@@ -21,6 +21,17 @@ seed goes through; a race nobody finished is won by the car furthest on (the rac
 or, if no car moved, by the better seed; a withdrawn racer's opponent goes through without a
 race. Each such decision is written on the match (``note``).
 
+**An entry deleted mid-bracket** (its racer's account deleted, which deletes their submissions;
+:func:`bracket_entry_deleted`, called on ``post_delete`` by :mod:`leaderboard.signals`) is
+withdrawn as if its racer had withdrawn: a match not yet raced goes to the opponent ("the
+opponent's entry was deleted"), a race already queued runs with the car out, one on track runs
+to its end. Its past wins stand: a match's ``winner`` keeps the submission's id after the row is
+gone (no database constraint, ``on_delete=DO_NOTHING``), as the seeding does, so the draw
+replays exactly as before and a finished bracket keeps its champion; the page names the gone
+entry by its seed. (With ``SET_NULL``, the winner was nulled: the draw went back a round, the
+next round's decision no longer fitted it and the bracket stuck.) Deleting a *model* changes
+nothing: its entry keeps the model's id and frozen checkpoint, and races from them.
+
 A community race's races count against its organiser's job quota
 (:func:`~leaderboard.eventraces.race_charged_to`): a match the quota holds back is not
 decided, it waits (noted on the match) and starts when a bracket race ends or the minute's
@@ -51,6 +62,7 @@ __all__ = [
     "QUOTA_WAIT_NOTE",
     "BracketState",
     "LeagueQuotaError",
+    "bracket_entry_deleted",
     "bracket_race_finished",
     "bracket_seed",
     "bracket_state",
@@ -63,6 +75,8 @@ log = logging.getLogger(__name__)
 BRACKET_SIZES = (4, 8, 16, 32)
 MAX_RACE_ATTEMPTS = 2
 QUOTA_WAIT_NOTE = "waits for one of the organiser's jobs to finish (their job quota is full)"
+WITHDREW_NOTE = "the opponent withdrew"
+DELETED_NOTE = "the opponent's entry was deleted"
 
 
 def _state(event: Event) -> tuple[draws.Bracket, list[int], set[int]]:
@@ -111,18 +125,56 @@ def bracket_withdraw(*, event: Event, user, submission: Submission) -> None:
         _, seeds, withdrawn = _state(event)
         if submission.pk not in seeds:
             raise LeagueError("this entry is not in the bracket")
-        withdrawn.add(submission.pk)
-        _save(event, seeds, withdrawn)
-        for match in BracketMatch.objects.filter(event=event, winner__isnull=True,
-                                                 race__isnull=False):  # fmt: skip
-            race = match.race
-            if race.status == JobStatus.QUEUED and submission.pk in (match.top_id, match.bottom_id):
-                entries = race.entries
-                for entry in entries:
-                    if entry.get("tag") == submission.pk:
-                        entry["withdrawn"] = "its racer withdrew"
-                RaceJob.objects.filter(pk=race.pk).update(entries=entries)
-        _advance(event)
+        _withdraw(event, seeds, withdrawn, submission.pk, "its racer withdrew")
+
+
+def _withdraw(event: Event, seeds: list[int], withdrawn: set[int], sub_id: int,
+              why: str) -> None:  # fmt: skip
+    """Take ``sub_id`` out (the event's row is locked): its queued race runs with its car
+    out, its matches not yet raced go to the opponent."""
+    withdrawn.add(sub_id)
+    _save(event, seeds, withdrawn)
+    for match in BracketMatch.objects.filter(event=event, winner__isnull=True,
+                                             race__isnull=False):  # fmt: skip
+        race = match.race
+        if race.status == JobStatus.QUEUED and sub_id in _sides(event, match, seeds):
+            entries = race.entries
+            for entry in entries:
+                if entry.get("tag") == sub_id:
+                    entry["withdrawn"] = why
+            RaceJob.objects.filter(pk=race.pk).update(entries=entries)
+    _advance(event)
+
+
+def bracket_entry_deleted(*, event_id: int, submission_id: int) -> None:
+    """A submission was deleted (its racer's account, say): if it is in its event's bracket,
+    it is withdrawn (see the module's docstring). ``leaderboard.signals`` calls this on
+    ``post_delete``, except when the event itself is being deleted (its bracket goes with it)."""
+    with transaction.atomic():
+        event = Event.objects.select_for_update(no_key=True).filter(pk=event_id).first()
+        if event is None or not event.bracket:
+            return
+        _, seeds, withdrawn = _state(event)
+        if submission_id in seeds and submission_id not in withdrawn:
+            _withdraw(event, seeds, withdrawn, submission_id, "its entry was deleted")
+
+
+def _sides(event: Event, match: BracketMatch, seeds: list[int]) -> tuple[int, int]:
+    """The match's two submission ids, from the seeding (they outlive the submission rows,
+    whose ``top``/``bottom`` become NULL when deleted)."""
+    game = bracket_state(event).draw.rounds[match.round - 1][match.index]
+    if game.top is None or game.bottom is None:  # not reached (a match row is made ready)
+        return (match.top_id or 0, match.bottom_id or 0)
+    return seeds[game.top - 1], seeds[game.bottom - 1]
+
+
+def _better_seed(event: Event, match: BracketMatch) -> int:
+    """Who goes through when a match is decided without a winner on track: the top seed,
+    unless they are out of the bracket (withdrawn, or their entry deleted) and the other
+    is not."""
+    _, seeds, withdrawn = _state(event)
+    top, bottom = _sides(event, match, seeds)
+    return bottom if top in withdrawn and bottom not in withdrawn else top
 
 
 def bracket_race_finished(*, race_id: int) -> BracketMatch | None:
@@ -140,7 +192,8 @@ def bracket_race_finished(*, race_id: int) -> BracketMatch | None:
             return match
         if race.status == JobStatus.COMPLETED:
             winner, note = _race_winner(match, race)
-            _decide(event, match, winner, note)
+            _decide(event, match, winner if winner is not None else _better_seed(event, match),
+                    note)  # fmt: skip
         elif race.status in (JobStatus.FAILED, JobStatus.CANCELED):
             if match.attempts < MAX_RACE_ATTEMPTS and event.bracket_on_race_day:
                 match.race = None  # back in the race-day queue (_advance)
@@ -148,20 +201,21 @@ def bracket_race_finished(*, race_id: int) -> BracketMatch | None:
             elif match.attempts < MAX_RACE_ATTEMPTS:
                 _launch(event, match)
             else:
-                _decide(event, match, match.top_id, f"the race could not be run ({race.error}); "
-                        "the better qualifier goes through")  # fmt: skip
+                _decide(event, match, _better_seed(event, match), f"the race could not be run "
+                        f"({race.error}); the better qualifier goes through")  # fmt: skip
         _advance(event)
     return match
 
 
 def _race_winner(match: BracketMatch, race: RaceJob) -> tuple[int | None, str]:
+    """The race's winner's submission id (None: no car moved) and the note."""
     winner_model = race.results.get("winner") if isinstance(race.results, dict) else None
     for entry in race.entries:
         if winner_model is not None and entry.get("model") == winner_model:
             car = next((c for c in race.car_rows if c.get("model") == winner_model), {})
             note = "" if car.get("finished") else "won on distance at the time limit"
             return entry.get("tag"), note
-    return match.top_id, "no car moved; the better qualifier goes through"
+    return None, "no car moved; the better qualifier goes through"
 
 
 def _decide(event: Event, match: BracketMatch, winner: int | None, note: str) -> None:
@@ -175,9 +229,11 @@ def _decide(event: Event, match: BracketMatch, winner: int | None, note: str) ->
     transaction.on_commit(lambda: bracket_changed(event.pk))
     champion = draws.champion(bracket)
     if champion is not None:
-        sub = Submission.objects.get(pk=seeds[champion - 1])
-        Notification.objects.create(user=sub.racer, message=f"You won the {event.name} bracket!",
-                                    link=f"/league/events/{event.pk}/bracket/")  # fmt: skip
+        sub = Submission.objects.filter(pk=seeds[champion - 1]).first()
+        if sub is not None:  # a gone entry has no racer left to tell
+            Notification.objects.create(user=sub.racer,
+                                        message=f"You won the {event.name} bracket!",
+                                        link=f"/league/events/{event.pk}/bracket/")  # fmt: skip
 
 
 def _advance(event: Event) -> None:
@@ -185,16 +241,18 @@ def _advance(event: Event) -> None:
     against a withdrawn racer is decided at once."""
     for _ in range(64):  # decisions can make more matches ready; a bracket has < 64 rounds
         bracket, seeds, withdrawn = _state(event)
+        alive = set(Submission.objects.filter(pk__in=seeds).values_list("pk", flat=True))
         progressed = False
         for ready in draws.next_matches(bracket):
             top, bottom = seeds[ready.top - 1], seeds[ready.bottom - 1]
             match, _ = BracketMatch.objects.get_or_create(
                 event=event, round=ready.round, index=ready.index,
-                defaults={"top_id": top, "bottom_id": bottom},
+                defaults={"top_id": top if top in alive else None,
+                          "bottom_id": bottom if bottom in alive else None},
             )  # fmt: skip
             if (top in withdrawn or bottom in withdrawn) and match.race_id is None:
-                through = bottom if top in withdrawn else top
-                _decide(event, match, through, "the opponent withdrew")
+                through, out = (bottom, top) if top in withdrawn else (top, bottom)
+                _decide(event, match, through, WITHDREW_NOTE if out in alive else DELETED_NOTE)
                 progressed = True
                 break
             if match.race_id is None:
@@ -238,8 +296,8 @@ def _launch(event: Event, match: BracketMatch) -> None:
         return
     except (LeagueError, ServiceError) as exc:
         message = getattr(exc, "message", str(exc))
-        _decide(event, match, match.top_id, f"the race could not start ({message}); "
-                "the better qualifier goes through")  # fmt: skip
+        _decide(event, match, _better_seed(event, match), f"the race could not start "
+                f"({message}); the better qualifier goes through")  # fmt: skip
         return
     match.race, match.attempts, match.note = race, match.attempts + 1, ""
     match.save(update_fields=["race", "attempts", "note"])

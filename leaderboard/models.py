@@ -300,9 +300,12 @@ class BracketMatch(models.Model):
     index = models.PositiveSmallIntegerField()
     top = models.ForeignKey(Submission, null=True, on_delete=models.SET_NULL, related_name="+")
     bottom = models.ForeignKey(Submission, null=True, on_delete=models.SET_NULL, related_name="+")
+    # The result outlives the entry: a deleted submission's id stays here (no constraint), as
+    # it stays in the event's seeding, so the draw replays as it was (leaderboard/bracket.py).
     winner = models.ForeignKey(
-        Submission, null=True, blank=True, on_delete=models.SET_NULL, related_name="+"
-    )
+        Submission, null=True, blank=True, on_delete=models.DO_NOTHING, db_constraint=False,
+        related_name="+",
+    )  # fmt: skip
     race = models.ForeignKey(
         RaceJob, null=True, blank=True, on_delete=models.SET_NULL, related_name="bracket_matches"
     )

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import logging
 
-from django.db.models.signals import post_save
+from django.db.models.signals import post_delete, post_save
 from django.dispatch import receiver
 
+from leaderboard.bracket import bracket_entry_deleted
+from leaderboard.models import Event, Submission
 from leaderboard.racefinish import league_race_finished
 from leaderboard.services import submission_record_result
 from training.models import FINISHED_JOB_STATUSES, EvaluationJob, RaceJob
@@ -44,3 +46,13 @@ def race_done(sender, race_id: int, **kwargs) -> None:
         league_race_finished(race_id=race_id)
     except Exception:  # noqa: BLE001 - never break the job's bookkeeping
         log.exception("could not record the league race %s", race_id)
+
+
+@receiver(post_delete, sender=Submission, dispatch_uid="bracket-entry-deleted")
+def submission_deleted(sender, instance: Submission, origin=None, **kwargs) -> None:
+    """An entry deleted mid-bracket is withdrawn
+    (:func:`~leaderboard.bracket.bracket_entry_deleted`); not when its event is being deleted
+    (the bracket goes with it)."""
+    if isinstance(origin, Event) or getattr(origin, "model", None) is Event:
+        return
+    bracket_entry_deleted(event_id=instance.event_id, submission_id=instance.pk)

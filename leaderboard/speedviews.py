@@ -4,6 +4,13 @@
 setting is off, not the user's turn) is a 403 page with the sentence. ``POST speed=<value>``
 (CSRF): sets it; a JSON answer for the page's script (``Accept: application/json``:
 ``{"speed": 1.1}``, or ``{"error": <sentence>}`` with 403 or 400), else the page again.
+
+``GET .../speed/turn.json``: whose turn it is, for the page's poll every few seconds
+(static/js/race_speed.js): ``{"turn": true, "speed": 1.1, "driving": 1.1}`` (``driving``:
+what the car drives at now, null before it drives) for the racer on track; a 403 with
+``{"turn": false, "error": <sentence>}`` for anyone else who may see the event (the page's
+refusal); a 404 for those who may not. The page polls it so that a racer waiting for their
+turn gets the buttons, and a racer whose turn ended the sentence, without a reload.
 """
 
 from __future__ import annotations
@@ -84,6 +91,22 @@ def race_speed(request: HttpRequest, event_id: int) -> HttpResponse:
     except speed_control.SpeedRefused as exc:
         return _page(request, event, error=_sentence(exc.message), status=403)
     return _page(request, event, speed=turn.speed, driving=turn.driving)
+
+
+@login_required
+@require_http_methods(["GET", "HEAD"])
+def race_speed_turn(request: HttpRequest, event_id: int) -> JsonResponse:
+    event = get_object_or_404(Event, pk=event_id)
+    if not can_view_event(request.user, event):
+        raise Http404("No such event")
+    try:
+        turn = speed_control.live_turn_of(event=event, user=request.user)
+    except speed_control.SpeedRefused as exc:
+        response = JsonResponse({"turn": False, "error": _sentence(exc.message)}, status=403)
+    else:
+        response = JsonResponse({"turn": True, "speed": turn.speed, "driving": turn.driving})
+    response["Cache-Control"] = "no-store"
+    return response
 
 
 def _current(event: Event, request: HttpRequest) -> float | None:

@@ -12,6 +12,7 @@
 /league/events/<id>/bracket/               the head-to-head bracket (seed, withdraw)
 /league/events/<id>/race-day/              the facilitator's race-day queue and controls
 /league/events/<id>/speed/                 a racer's live speed control during their turn
+/league/events/<id>/speed/turn.json        whose turn it is, for that page's poll
 /league/events/<id>/broadcast/[?watch=]    the broadcast page for a big screen
 /league/races/<id>/video.mp4               a league race's broadcast video
 Websockets: /ws/league/events/<id>/ and /ws/league/events/<id>/broadcast/ (routing.py)
@@ -46,6 +47,11 @@ urlpatterns = [
     path("events/<int:event_id>/bracket/", raceviews.event_bracket, name="league-event-bracket"),
     path("events/<int:event_id>/race-day/", raceviews.race_day, name="league-race-day"),
     path("events/<int:event_id>/speed/", speedviews.race_speed, name="league-race-speed"),
+    path(
+        "events/<int:event_id>/speed/turn.json",
+        speedviews.race_speed_turn,
+        name="league-race-speed-turn",
+    ),
     path("events/<int:event_id>/broadcast/", raceviews.broadcast, name="league-broadcast"),
     path("races/<int:race_id>/video.mp4", raceviews.race_video_view, name="league-race-video"),
     path("submissions/<int:submission_id>/", views.submission_detail, name="league-submission"),

@@ -1,5 +1,6 @@
 """The "Outside world" fieldset of a form (the create-model wizard, a league event's form): a
-checkbox per condition family (off by default) and, per parameter, an optional narrowed range.
+checkbox per condition family (off by default) and, per parameter, an optional range anywhere
+within its widest (narrower or wider than the training default).
 
 The fields are added to any Django form by :func:`add_condition_fields`; :func:`clean_conditions`
 turns what was typed into the stored setting (``cleaned_data["conditions"]``, {} when off) with
@@ -41,15 +42,17 @@ def add_condition_fields(form: forms.Form) -> None:
         for name, info in params.items():
             for key, end, default in zip(range_names(family, name), ("low", "high"),
                                          info.default, strict=True):  # fmt: skip
-                widest = f"{info.low:g} to {info.high:g}"
+                # What clean_conditions and racing.conditions allow: any range inside the
+                # widest, narrower or wider than the training default.
+                span = (f"a range may be anything within its widest, {info.low:g} to "
+                        f"{info.high:g}, narrower or wider than the default "
+                        f"{info.default[0]:g} to {info.default[1]:g}")  # fmt: skip
                 form.fields[key] = forms.FloatField(
                     label=f"{info.label}: {end}", required=False,
                     min_value=info.low, max_value=info.high,
                     error_messages={
-                        "min_value": f"{info.label}: at least {info.low:g} (its widest range is "
-                        f"{widest}; a range may be narrowed, not widened).",
-                        "max_value": f"{info.label}: at most {info.high:g} (its widest range is "
-                        f"{widest}; a range may be narrowed, not widened).",
+                        "min_value": f"{info.label}: at least {info.low:g} ({span}).",
+                        "max_value": f"{info.label}: at most {info.high:g} ({span}).",
                         "invalid": f"{info.label}: enter a number.",
                     },
                     widget=forms.NumberInput(attrs={"step": "any", "placeholder": f"{default:g}"}),

@@ -6,7 +6,7 @@
 /races/<id>/               a race: live view while it runs, then results, replay, sim-traces
 /races/<id>/video.mp4      the replay (the challenger and the opponents' owners)
 /races/<id>/traces.tar.gz  every car's sim-trace (the challenger only)
-/races/<id>/stop/          POST: stop a queued or running race (the challenger only)
+/races/<id>/stop/          POST: cancel a queued race, stop a running one (the challenger only)
 /models/<id>/challenges/   POST: open or close a model to challenges (its owner)
 
 Anyone else gets a 404, as for a race that does not exist.
@@ -30,7 +30,6 @@ from training.models import Direction, RaceJob
 from training.services import ServiceError, track_catalog
 from training.services import challenges as service
 from training.services.downloads import race_video
-from training.services.race_control import race_stop
 
 
 def _loops() -> list[tuple[str, str]]:
@@ -152,10 +151,15 @@ def race_traces(request: HttpRequest, race_id: int) -> HttpResponse:
 @login_required
 @require_POST
 def race_stop_view(request: HttpRequest, race_id: int) -> HttpResponse:
-    """The challenger stops their race (cooperative: the worker stops at its next step and
-    keeps what was driven: the results so far, the replay and the sim-traces)."""
+    """The challenger stops their race: a queued one is canceled at once; a running one stops
+    at the worker's next step and keeps what was driven (the results so far, the replay and
+    the sim-traces)."""
     race, _ = _race(request, race_id, challenger_only=True)
-    if race_stop(race=race, by=request.user.get_username()):
+    outcome = service.challenge_stop(race=race, by=request.user.get_username())
+    if outcome == service.CANCELED:
+        messages.success(request, "Race canceled before it started: it will not run, and it "
+                         "no longer counts against your job quota.")  # fmt: skip
+    elif outcome == service.STOPPING:
         messages.success(request, "Stopping the race: what was driven is kept.")
     else:
         messages.info(request, "This race has already ended.")

@@ -1,14 +1,19 @@
 """Readiness for the real car (issue 51): start a check from the model page, its table and
-verdict there, the worst cells' videos (the owner's only), and two models' tables side by side."""
+verdict there, the worst cells' videos (the owner's only), and two models' tables side by side.
+
+``/readiness/<id>/progress.json`` (the owner's only; 404 for anyone else, as for a missing
+check): how far a check got, which the model page polls every few seconds while it runs
+(static/js/readiness_progress.js); without JavaScript the page says to reload."""
 
 from __future__ import annotations
 
 from django.contrib import messages
 from django.contrib.auth.decorators import login_required
-from django.http import Http404, HttpRequest, HttpResponse
+from django.http import Http404, HttpRequest, HttpResponse, JsonResponse
 from django.shortcuts import redirect, render
 from django.views.decorators.http import require_http_methods, require_POST
 
+from console.templatetags.racecraft import badge
 from console.views.owned import owned_model, say_queued
 from training import services
 from training.http import media_response
@@ -55,6 +60,25 @@ def readiness_stop(request: HttpRequest, check_id: int) -> HttpResponse:
     except services.ServiceError as exc:
         messages.error(request, exc.sentence)
     return redirect(f"/models/{check.model_id}/#readiness")
+
+
+@login_required
+@require_http_methods(["GET", "HEAD"])
+def readiness_progress(request: HttpRequest, check_id: int) -> JsonResponse:
+    """The check's state for the model page's poll: ``status`` (and its words and badge),
+    ``active``, ``cells_done`` of ``cells_total``, ``percent`` (0-100) and ``ahead`` (jobs
+    before it in the fair order while queued, else null)."""
+    check = _owned_check(request, check_id)
+    total = check.cells_total
+    response = JsonResponse({
+        "status": check.status, "status_display": check.get_status_display(),
+        "badge": badge(check.status), "active": check.is_active,
+        "cells_done": check.cells_done, "cells_total": total,
+        "percent": round(100 * check.cells_done / total) if total else 0,
+        "ahead": services.jobs_ahead(check),
+    })  # fmt: skip
+    response["Cache-Control"] = "no-store"
+    return response
 
 
 @login_required

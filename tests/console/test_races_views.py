@@ -180,9 +180,12 @@ def test_only_the_challenger_stops_their_race(field, alice, bob, charlie):
     assert csrf.post(f"/races/{race.pk}/stop/").status_code == 403  # no CSRF token
     assert not RaceJob.objects.get(pk=race.pk).stop_requested
 
+    # A worker has it (a queued race is canceled instead: the next test).
+    RaceJob.objects.filter(pk=race.pk).update(status=JobStatus.IN_PROGRESS)
     response = logged_in(alice).post(f"/races/{race.pk}/stop/")
     assert response.status_code == 302 and response.url == f"/races/{race.pk}/"
-    assert RaceJob.objects.get(pk=race.pk).stop_requested
+    stopping = RaceJob.objects.get(pk=race.pk)
+    assert stopping.stop_requested and stopping.status == JobStatus.IN_PROGRESS
     assert "Stopping…" in logged_in(alice).get(f"/races/{race.pk}/").content.decode()
     RaceJob.objects.filter(pk=race.pk).update(status=JobStatus.COMPLETED)
     response = logged_in(alice).post(f"/races/{race.pk}/stop/", follow=True)

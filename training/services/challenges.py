@@ -12,6 +12,8 @@ limits, and who sees what of it afterwards.
 - The race is a race job charged to the challenger (their job quota,
   ``RACECRAFT_MAX_ACTIVE_JOBS_PER_USER``) and dealt in the fair order
   (:mod:`training.services.job_queue`).
+- The challenger stops their race (:func:`challenge_stop`): a queued one is canceled at once
+  (it never runs and gives its quota share back), a running one stops at its next step.
 - The challenger (:attr:`RaceJob.owner`) sees the race's page, live view, results, replay and
   sim-traces; an opponent's owner (:attr:`RaceJob.opponents`) sees the result and the replay;
   anyone else, nothing.
@@ -31,11 +33,12 @@ from racing.headtohead import MAX_RACERS
 from training import dispatch
 from training.errors import ServiceError, StoreError
 from training.interchange.layout import RaceKeys
-from training.models import RaceJob, RacingModel
+from training.models import JobStatus, RaceJob, RacingModel
 from training.services.job_queue import jobs_ahead
 from training.services.job_states import enqueue_after_commit
 from training.services.jobs import job_quota_hold
 from training.services.model_files import model_freeze, model_metadata, store_failure
+from training.services.race_control import race_stop
 from training.services.races import RACE_DEFAULT_BOT_SPEED, race_conditions
 from training.store import get_store
 
@@ -177,6 +180,24 @@ def challenge_start(
         job.opponents.set({m.owner_id for m in models[1:]} - {user.pk})
         enqueue_after_commit(job, dispatch.EVALUATE_RACE)
     return job
+
+
+STOPPING, CANCELED, ENDED = "stopping", "canceled", "ended"
+
+
+def challenge_stop(*, race: RaceJob, by: str = "") -> str:
+    """The challenger stops their race (the caller checked who may, :func:`challenge_for`).
+    A race still queued is canceled at once (:func:`race_stop`): it never runs, its job
+    quota share is free again, and its frozen checkpoints are deleted after the commit (no
+    car will race them). A running race stops at its next step and keeps what it drove.
+    Returns :data:`CANCELED`, :data:`STOPPING` or :data:`ENDED` (it had already ended)."""
+    if not race_stop(race=race, by=by, cancel_queued=True):
+        return ENDED
+    if race.status == JobStatus.CANCELED:
+        race_id = race.pk
+        transaction.on_commit(lambda: _forget_frozen(race_id))
+        return CANCELED
+    return STOPPING
 
 
 def _forget_frozen(race_id: int) -> None:

@@ -23,9 +23,12 @@ from decimal import Decimal, InvalidOperation
 
 import redis
 from django.conf import settings
+from django.db import transaction
+from django.utils import timezone
 
 from training.errors import ServiceError
 from training.models import JobStatus, RaceJob
+from training.services.job_states import job_ended, transition
 
 log = logging.getLogger(__name__)
 MIN_SPEED_MULTIPLIER = 0.5
@@ -161,14 +164,29 @@ class RaceSpeeds:
         return lambda clock_s: self.value(index, clock_s)
 
 
-def race_stop(*, race: RaceJob, by: str = "") -> bool:
-    """Ask a race that is queued or running to stop (cooperative: the worker polls the flag;
-    what it drove is kept). ``by`` says who asked, for the log. Returns False when the race
-    had already ended."""
-    stopped = RaceJob.objects.filter(pk=race.pk, status__in=ACTIVE).update(stop_requested=True)
-    if stopped:
+def race_stop(*, race: RaceJob, by: str = "", cancel_queued: bool = False) -> bool:
+    """Stop a race. One a worker has claimed stops at its next step (cooperative: the worker
+    polls the flag) and keeps what it drove. One still queued, with ``cancel_queued``, is
+    CANCELED at once, as :func:`~training.services.jobs.job_stop` cancels other queued jobs:
+    it never runs, it no longer counts against its owner's job quota, and ``race_finished``
+    is sent; without it (the race day's stop, which ends its turn when the race ends) it is
+    flagged and stops at its first step. ``by`` says who asked, for the log. Returns False
+    when the race had already ended; ``race.status`` says whether it was canceled."""
+    with transaction.atomic():
+        canceled = cancel_queued and transition(
+            race, allowed=(JobStatus.QUEUED,), to=JobStatus.CANCELED,
+            finished_at=timezone.now(), stop_requested=True,
+        )  # fmt: skip
+        stopped = canceled or bool(
+            RaceJob.objects.filter(pk=race.pk, status__in=ACTIVE).update(stop_requested=True)
+        )
+    if canceled:
+        log.info("race %s: canceled before it ran by %s", race.pk, by or "someone")
+        job_ended(race)
+    elif stopped:
+        race.stop_requested = True
         log.info("race %s: stop requested by %s", race.pk, by or "someone")
-    return bool(stopped)
+    return stopped
 
 
 __all__ = [

@@ -38,13 +38,13 @@ import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
+from training.outbound_allow import Network, parse_allow_entries
+
 log = logging.getLogger(__name__)
 
 Address = ipaddress.IPv4Address | ipaddress.IPv6Address
-Network = ipaddress.IPv4Network | ipaddress.IPv6Network
 
 _HOST_RE = re.compile(r"^(?=.{1,253}$)[a-z0-9_]([a-z0-9_-]{0,62})(\.[a-z0-9_]([a-z0-9_-]{0,62}))*$")
-_NAME_RE = re.compile(r"^[a-z0-9_][a-z0-9_.-]{0,252}$")
 _SHARED = ipaddress.ip_network("100.64.0.0/10")  # carrier-grade NAT (RFC 6598)
 _NAT64 = ipaddress.ip_network("64:ff9b::/96")  # an IPv4 address in its last 32 bits
 _CHUNK = 64 * 1024  # bytes asked of the socket per read
@@ -71,22 +71,10 @@ class AllowList:
     @classmethod
     def parse(cls, entries: Iterable[str]) -> AllowList:
         """From ``"minio.lan"``, ``"10.0.0.5"``, ``"192.168.1.0/24"``, ``"::1"``... Raises
-        ValueError naming an entry that is neither a host name nor an address or network."""
-        hosts: set[str] = set()
-        networks: list[Network] = []
-        for raw in entries:
-            entry = raw.strip().lower().rstrip(".")
-            if not entry:
-                continue
-            try:
-                networks.append(ipaddress.ip_network(entry.strip("[]"), strict=False))
-                continue
-            except ValueError:
-                pass
-            if not _NAME_RE.match(entry):
-                raise ValueError(f"{raw!r} is not a host name, an IP address or a network")
-            hosts.add(entry)
-        return cls(frozenset(hosts), tuple(networks))
+        ValueError naming an entry that is neither a host name nor an address or network
+        (:func:`training.outbound_allow.parse_allow_entries`, which settings check with)."""
+        hosts, networks = parse_allow_entries(entries)
+        return cls(hosts, networks)
 
     def allows(self, host: str, address: Address) -> bool:
         if host.lower().rstrip(".") in self.hosts:
