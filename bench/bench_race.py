@@ -29,8 +29,9 @@ Each seed races twice in this process, for ``--seconds`` of race clock each (sto
   picture-in-picture per car: :class:`racing.broadcast.BroadcastView`) JPEG-encoded once and
   sent once to the event's broadcast group, the MP4 (its timing burnt in)
   recorded (``--no-video``: not), while ``--spectators`` websocket clients (one child process,
-  asyncio, raw RFC 6455: they time each frame message and read its race clock, nothing else)
-  watch ``/ws/league/events/<id>/broadcast/`` as anonymous visitors of a public event, through
+  asyncio, raw RFC 6455: they time each frame message and read its race clock, nothing else;
+  see the viewers below) watch ``/ws/league/events/<id>/broadcast/`` as anonymous visitors
+  of a public event, through
   a real daphne started as ``manage.py up`` starts it (its listen queue and handshake timeout:
   :func:`console.launcher.daphne_server_args`) serving ``console.asgi`` and a Channels layer on
   Redis (an embedded Redis
@@ -40,6 +41,18 @@ Each seed races twice in this process, for ``--seconds`` of race clock each (sto
   tries again as the page does (after 1 s, then 2 s, 4 s: ``static/leaderboard/broadcast.js``),
   :data:`CONNECT_TRIES` times in all. After the race the viewers listen on until the frames
   stop.
+
+The viewers stand for browsers on other machines, so they do no more than a browser must to
+show the frame's time: each is an asyncio ``BufferedProtocol`` (:class:`ViewerProtocol`)
+whose socket reads into its own buffer (``recv_into``); every message is parsed where it
+lies, and every frame message is timed when its last byte is read and its header decoded
+with the one frame decoder for its race clock; the picture is neither copied nor decoded.
+Before (issue 48's first measurements) each viewer was a ``StreamReader`` coroutine whose
+``readexactly`` copied each 50 KB message three times (into the reader's buffer, out of it,
+and the rest of the buffer moved down), and timed it when the coroutine next ran; and the
+header's depth check walked its 1.7 KB byte by byte in Python (now in C:
+:func:`racing.framecodec.decode_header`, the same for every reader): together about 60% of
+the viewers' CPU. They receive, time and read the same messages as before.
 
 The window of a live race starts 1 s after its first frame (the first second is left out) and
 ends when the race returns. Per viewer: frames received in the window, frames/s over it, the
@@ -57,6 +70,10 @@ median viewer (target >= 14), ``paced_fps=`` frames/s the race itself showed, ``
 however many watch), ``sim_steps_per_s=`` the unpaced race's steps per second of wall time,
 ``realtime=`` race_fps / 15, ``ratio=`` the live race's CPU per step over the unpaced one's,
 both measured in this run (what broadcasting, the MP4 and pacing cost the worker),
+``race_cpu_ms_per_frame=`` the race process's CPU per frame shown,
+``daphne_cpu_us_per_delivery=`` and ``viewers_cpu_us_per_delivery=`` daphne's and the viewers'
+CPU per frame message delivered (one frame to one viewer; machine-independent units, unlike
+the frames/s of a shared machine),
 ``delay_s=`` the median viewer's median delay behind the race, ``frames_per_viewer=`` (in the
 window), ``spectators=`` connected/asked and ``retried=`` how many of them connected only after
 a failed try. Steps and frames do not depend on the machine;
@@ -75,7 +92,6 @@ import secrets
 import shutil
 import signal
 import statistics
-import struct
 import subprocess
 import sys
 import tempfile
@@ -179,6 +195,22 @@ class Live:
         """The median viewer's median delay behind the race."""
         return median([v.delay_median_s for v in self.viewers])
 
+    @property
+    def delivered(self) -> int:
+        """Frame messages the viewers got, all of them (late ones too)."""
+        return sum(v.received for v in self.viewers)
+
+    def cpu_per_frame(self) -> dict[str, float]:
+        """CPU per frame, machine-independent units: ``race_ms`` a frame shown (the race's
+        whole step: simulation, policies, picture, JPEG, MP4); ``daphne_us`` and
+        ``viewers_us`` a frame delivered (one frame message to one viewer)."""
+        cpu, got = self.cpu_s, self.delivered
+        return {
+            "race_ms": 1e3 * cpu.get("race", 0.0) / self.frames if self.frames else float("nan"),
+            "daphne_us": 1e6 * cpu.get("daphne", 0.0) / got if got else float("nan"),
+            "viewers_us": 1e6 * cpu.get("viewers", 0.0) / got if got else float("nan"),
+        }
+
 
 def live_result(arrivals: list[list[tuple[float, float | None]]], shown: list[tuple[float, float]],
                 end: float, *, wanted: int, encodes: int, sent: int) -> Live:  # fmt: skip
@@ -239,12 +271,16 @@ def last_line(pairs: list[tuple[Race, Race]], spectators: int) -> str:
     retried = max((r.retried for r in lives), default=0)
     frames = median([statistics.median(v.frames for v in r.viewers) for r in lives if r.viewers])
     delay = median([r.delay_s for r in lives])
+    per = {key: median([r.cpu_per_frame()[key] for r in lives])
+           for key in ("race_ms", "daphne_us", "viewers_us")}  # fmt: skip
     return (f"race_fps={fps:.2f} paced_fps={paced:.2f} max_gap_s={gap:.2f} "
             f"encodes_per_frame={encodes:.3f} sim_steps_per_s={sim:.1f} "
             f"realtime={fps / REALTIME_FPS:.3f} ratio={ratio:.2f} "
             f"delay_s={delay:.2f} frames_per_viewer={frames:.0f} "
             f"spectators={connected}/{spectators} retried={retried} "
-            f"seeds={len(pairs)}")  # fmt: skip
+            f"seeds={len(pairs)} race_cpu_ms_per_frame={per['race_ms']:.1f} "
+            f"daphne_cpu_us_per_delivery={per['daphne_us']:.0f} "
+            f"viewers_cpu_us_per_delivery={per['viewers_us']:.0f}")  # fmt: skip
 
 
 # --------------------------------------------------------------------------- the viewers
@@ -264,66 +300,133 @@ def race_clock(payload: bytes) -> float | None:
         return None
 
 
-async def handshake(url: str) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
-    """A websocket connection to ``url`` (with the Origin a browser sends), once accepted."""
+def upgrade_request(url: str) -> tuple[str, int, bytes]:
+    """Host, port and the websocket handshake request for ``url`` (with the Origin a browser
+    sends)."""
     parts = urlsplit(url)
     host, port = parts.hostname or "127.0.0.1", parts.port or 80
-    reader, writer = await asyncio.open_connection(host, port, limit=1 << 20)
-    try:
-        key = base64.b64encode(os.urandom(16)).decode()
-        writer.write(f"GET {parts.path} HTTP/1.1\r\nHost: {host}:{port}\r\n"
-                     "Upgrade: websocket\r\nConnection: Upgrade\r\n"
-                     f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-                     f"Origin: http://{host}:{port}\r\n\r\n".encode())  # fmt: skip
-        head = await reader.readuntil(b"\r\n\r\n")
-        if b" 101 " not in head.split(b"\r\n", 1)[0]:
-            raise ConnectionError(head.split(b"\r\n", 1)[0].decode(errors="replace"))
-    except BaseException:
-        writer.close()
-        raise
-    return reader, writer
+    key = base64.b64encode(os.urandom(16)).decode()
+    request = (f"GET {parts.path} HTTP/1.1\r\nHost: {host}:{port}\r\n"
+               "Upgrade: websocket\r\nConnection: Upgrade\r\n"
+               f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+               f"Origin: http://{host}:{port}\r\n\r\n")  # fmt: skip
+    return host, port, request.encode()
+
+
+class ViewerProtocol(asyncio.BufferedProtocol):
+    """One viewer's connection: the handshake (:attr:`accepted`), then every message parsed
+    where the socket put it, in one buffer the socket reads into (``recv_into``): a frame
+    message's arrival time (when its last byte was read) and race clock (its header read with
+    the one frame decoder, :func:`race_clock`) appended to ``times``; pongs for daphne's
+    pings; :attr:`closed` once the connection ends. The picture itself is never copied."""
+
+    BUFFER, MIN_READ = 1 << 20, 256 << 10
+
+    def __init__(self, request: bytes, times: list[tuple[float, float | None]]) -> None:
+        loop = asyncio.get_running_loop()
+        self.request, self.times = request, times
+        self.accepted, self.closed = loop.create_future(), loop.create_future()
+        self.buffer = bytearray(self.BUFFER)
+        self.view = memoryview(self.buffer)
+        self.start = self.end = self.need = 0  # unparsed bytes: [start, end)
+        self.fragments: list[bytes] = []
+        self.transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport) -> None:
+        self.transport = transport
+        transport.write(self.request)
+
+    def connection_lost(self, exc) -> None:
+        if not self.accepted.done():
+            self.accepted.set_exception(ConnectionError("closed during the handshake"))
+        if not self.closed.done():
+            self.closed.set_result(None)
+
+    def get_buffer(self, sizehint: int) -> memoryview:
+        if len(self.buffer) - self.end < self.MIN_READ:  # move what is left to a new buffer
+            pending = self.end - self.start
+            buffer = bytearray(max(self.BUFFER, 2 * max(pending, self.need)))
+            buffer[:pending] = self.view[self.start : self.end]
+            self.buffer, self.view = buffer, memoryview(buffer)
+            self.start, self.end = 0, pending
+        return self.view[self.end :]
+
+    def buffer_updated(self, nbytes: int) -> None:
+        self.end += nbytes
+        if not self.accepted.done() and not self._handshake():
+            return
+        buffer, start = self.buffer, self.start
+        while self.end - start >= 2:
+            b0, b1 = buffer[start], buffer[start + 1]
+            length, at = b1 & 0x7F, start + 2
+            if length >= 126:
+                size = 2 if length == 126 else 8
+                if self.end < at + size:
+                    break
+                length, at = int.from_bytes(buffer[at : at + size], "big"), at + size
+            if self.end < at + length:
+                self.need = at + length - start
+                break
+            start, self.need = at + length, 0
+            self._message(b0 & 0x0F, b0 & 0x80, self.view[at:start])
+        self.start = start
+        if start == self.end:
+            self.start = self.end = 0
+
+    def _handshake(self) -> bool:
+        head = bytes(self.view[: self.end])
+        if b"\r\n\r\n" not in head:
+            return False
+        status = head.split(b"\r\n", 1)[0]
+        if b" 101 " not in status:
+            self.accepted.set_exception(ConnectionError(status.decode(errors="replace")))
+            self.transport.close()
+            return False
+        self.start = head.index(b"\r\n\r\n") + 4
+        self.accepted.set_result(None)
+        return True
+
+    def _message(self, opcode: int, fin: int, payload: memoryview) -> None:
+        if opcode == 0x8:  # close
+            self.transport.close()
+        elif opcode == 0x9:  # ping
+            pong = bytes(payload)
+            self.transport.write(bytes([0x8A, 0x80 | len(pong)]) + mask(pong))
+        elif opcode in (0x2, 0x0):  # a frame: binary, maybe in fragments
+            if not fin:
+                self.fragments.append(bytes(payload))
+                return
+            if self.fragments:
+                payload, self.fragments = b"".join([*self.fragments, payload]), []
+            self.times.append((time.monotonic(), race_clock(payload)))
 
 
 async def view(url: str, times: list[tuple[float, float | None]], opened: asyncio.Future) -> None:
-    """One anonymous viewer: the handshake (tried :data:`CONNECT_TRIES` times, 1 s, 2 s, 4 s
-    apart, as the page does), then the arrival time and race clock of every complete frame
-    message; pongs for daphne's pings. Sets ``opened`` once the handshake ended: the number of
+    """One anonymous viewer (:class:`ViewerProtocol`): the handshake (tried
+    :data:`CONNECT_TRIES` times, 1 s, 2 s, 4 s apart, as the page does), then every frame
+    message until the connection ends. Sets ``opened`` once the handshake ended: the number of
     failed tries before it worked, or the last try's exception."""
+    loop = asyncio.get_running_loop()
+    host, port, request = upgrade_request(url)
     for tries in range(CONNECT_TRIES):
+        transport = None
         try:
-            reader, writer = await handshake(url)
+            transport, protocol = await loop.create_connection(
+                lambda: ViewerProtocol(request, times), host, port)  # fmt: skip
+            await protocol.accepted
             break
-        except (OSError, asyncio.IncompleteReadError, ConnectionError) as exc:
+        except OSError as exc:  # ConnectionError included
+            if transport is not None:
+                transport.close()
             if tries == CONNECT_TRIES - 1:
                 opened.set_result(exc)
                 return
             await asyncio.sleep(2.0**tries)
     opened.set_result(tries)
-    message = b""  # the binary message being received (its fragments so far)
     try:
-        while True:
-            b0, b1 = await reader.readexactly(2)
-            length = b1 & 0x7F
-            if length == 126:
-                (length,) = struct.unpack("!H", await reader.readexactly(2))
-            elif length == 127:
-                (length,) = struct.unpack("!Q", await reader.readexactly(8))
-            payload = await reader.readexactly(length)
-            opcode, fin = b0 & 0x0F, b0 & 0x80
-            if opcode == 0x8:  # close
-                return
-            if opcode == 0x9:  # ping
-                writer.write(bytes([0x8A, 0x80 | len(payload)]) + mask(payload))
-                continue
-            if opcode in (0x2, 0x0):  # a frame: binary, maybe in fragments
-                message = payload if opcode == 0x2 else message + payload
-                if fin:
-                    times.append((time.monotonic(), race_clock(message)))
-                    message = b""
-    except (OSError, asyncio.IncompleteReadError):
-        return
+        await protocol.closed
     finally:
-        writer.close()
+        transport.close()
 
 
 async def spectate(url: str, count: int, out: Path) -> None:
@@ -331,6 +434,7 @@ async def spectate(url: str, count: int, out: Path) -> None:
     error>`` once every handshake ended (``retried``: connected after a failed try), listens
     until SIGTERM and then until the frames stop (no frame for :data:`QUIET_S`), then writes
     the connected viewers' frames to ``out`` as JSON."""
+    race_clock(b"")  # the frame decoder loaded before the race, as a browser has its page's
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     loop.add_signal_handler(signal.SIGTERM, stop.set)
@@ -675,6 +779,12 @@ def report(pairs: list[tuple[Race, Race]], args: argparse.Namespace) -> None:
                             for name, s in r.cpu_s.items())  # fmt: skip
             print(f"  seed {live.seed}: CPU during the live race ({live.wall_s:.1f} s wall; "
                   f"% of one core, the machine has {os.cpu_count()}): {cpu}")  # fmt: skip
+            per = r.cpu_per_frame()
+            print(
+                f"  seed {live.seed}: CPU per frame: the race {per['race_ms']:.1f} ms a frame "
+                f"shown; daphne {per['daphne_us']:.0f} us and the viewers "
+                f"{per['viewers_us']:.0f} us a frame delivered ({r.delivered} delivered)"
+            )
             print(f"  seed {live.seed}: the race showed {r.frames} frames in {r.shown_s:.1f} s "
                   f"({r.paced_fps:.2f} fps); window {r.window_s:.1f} s")  # fmt: skip
 

@@ -11,14 +11,16 @@ viewer's 10-second ping checks it too). Messages, as JSON:
   (:mod:`racing.framecodec`: a 4-byte big-endian length, that many bytes of JSON ``{"timing":
   {...}, "shot": {...}, "layout": {...}, "title": ..., "t": <unix time>}``, then the JPEG);
   built once by the race's worker at 15 frames/s (real time) however many watch, published
-  once to Redis, and written untouched by each web process's :class:`FrameHub` to its viewers.
+  once to Redis, and written untouched by each web process's :class:`FrameHub` to its viewers
+  (under daphne framed once for all of them and handed to each socket: :class:`Wire`).
   The timing (:class:`racing.timing.Timing`) carries names, colours, times and positions only:
   spectators see the same frames. A process that cannot keep up skips frames, never falls
   behind: the hub reads Redis as fast as frames come and keeps only the newest frame not yet
   written; its writer sends that one as soon as it is done with the last. A slow machine shows
   fewer frames, never none (frames are not judged by their age in wall time: a loaded machine's
   frames, or a worker whose clock is behind, would all be "stale"). A frame that cannot be read
-  is dropped;
+  is dropped. A viewer whose connection still holds unsent bytes of the last frame skips
+  frames until it has taken it, then gets the newest;
 - ``{"type": "status", ...}``: a race went on track (``started``, ``title``), or ended
   (``over``, with ``winner``, ``winner_time_s`` and ``standings``: names, positions and
   times), or the queue changed (``queue``, ``paused``). Spectators get only that
@@ -29,6 +31,7 @@ viewer's 10-second ping checks it too). Messages, as JSON:
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import secrets
 import time
@@ -111,15 +114,18 @@ class FrameHub:
     Two tasks per channel: the reader takes every frame off Redis as it comes (so Redis never
     queues frames for a slow process) into :attr:`newest`; the writer sends the newest one to
     every viewer, then the newest one again. However slow the writing, a viewer gets the
-    newest frame next: a delayed process skips frames, never shows old ones, never none."""
+    newest frame next: a delayed process skips frames, never shows old ones, never none. The
+    same holds per viewer (:meth:`fan_out`): a viewer whose connection has not taken the last
+    frame yet is skipped, so a slow network holds at most one frame, never a queue."""
 
-    viewers: dict[str, set[AsyncJsonWebsocketConsumer]] = {}
+    viewers: dict[str, dict[AsyncJsonWebsocketConsumer, None]] = {}
+    """Each channel's viewers in the order they joined (a frame goes out in that order)."""
     tasks: dict[str, asyncio.Task] = {}
     newest: dict[str, NewestFrame] = {}
 
     @classmethod
     def join(cls, channel: str, viewer: AsyncJsonWebsocketConsumer) -> None:
-        cls.viewers.setdefault(channel, set()).add(viewer)
+        cls.viewers.setdefault(channel, {})[viewer] = None
         task = cls.tasks.get(channel)
         loop = asyncio.get_running_loop()
         if task is None or task.done() or task.get_loop() is not loop:
@@ -127,8 +133,8 @@ class FrameHub:
 
     @classmethod
     def leave(cls, channel: str, viewer: AsyncJsonWebsocketConsumer) -> None:
-        viewers = cls.viewers.get(channel, set())
-        viewers.discard(viewer)
+        viewers = cls.viewers.get(channel, {})
+        viewers.pop(viewer, None)
         if not viewers:
             cls.viewers.pop(channel, None)
             task = cls.tasks.pop(channel, None)
@@ -178,13 +184,132 @@ class FrameHub:
         for as long as ``owner`` (its reader) is the channel's."""
         while cls.tasks.get(channel) is owner:
             frame = await newest.take(LISTEN_POLL_S)
-            if frame is None:
-                continue
-            for viewer in list(cls.viewers.get(channel, ())):
-                try:
+            if frame is not None:
+                await cls.fan_out(channel, frame)
+
+    @classmethod
+    async def fan_out(cls, channel: str, frame: bytes) -> None:
+        """One frame to the channel's viewers as they are now. A viewer on daphne's websocket
+        (:func:`wire_of`) gets the frame framed once for all of them
+        (:meth:`Wire.write`), or, while its connection still holds unsent bytes of an earlier
+        frame, nothing: it gets the newest frame once it has taken the last one (a slow
+        viewer skips frames, never queues them, and never holds the others up). Any other
+        viewer gets it through its consumer (``send``). A viewer that left (its access
+        revoked) while the frame went out gets nothing after it left."""
+        viewers = cls.viewers.get(channel)
+        if not viewers:
+            return
+        prepared = None
+        for viewer in list(viewers):
+            if viewer not in viewers:
+                continue  # left while an earlier viewer's send awaited
+            wire = wire_of(viewer)
+            try:
+                if wire is None:
                     await viewer.send(bytes_data=frame)
-                except Exception:  # noqa: BLE001 - one viewer gone: the others go on
-                    log.debug("could not send a frame to a viewer", exc_info=True)
+                elif wire.backed_up():
+                    viewer.frames_skipped = getattr(viewer, "frames_skipped", 0) + 1
+                else:
+                    if prepared is None:
+                        prepared = wire.prepare(frame)
+                    wire.write(prepared)
+            except Exception:  # noqa: BLE001 - one viewer gone: the others go on
+                log.debug("could not send a frame to a viewer", exc_info=True)
+
+
+class Wire:
+    """A viewer's websocket as daphne holds it (an autobahn ``WebSocketServerProtocol`` on a
+    Twisted transport), for the frames only. The same frame goes to hundreds of viewers, so it
+    is framed once (autobahn's ``prepareMessage``), and a viewer costs one ``send`` on its
+    socket: on a plain TCP connection with nothing unsent the frame goes to the socket at once
+    (what Twisted's buffered ``write`` would do a loop turn later, after registering the
+    socket for writing and before unregistering it: two ``epoll_ctl`` calls and their Python a
+    viewer a frame); whatever the socket does not take goes to Twisted's buffer, in order.
+    Otherwise (TLS) autobahn's ``sendPreparedMessage``. Either way none of the ASGI path
+    (consumer, session middleware, daphne's reply, autobahn framing a copy per viewer): most
+    of what 7,500 frame messages a second (500 viewers) cost daphne. Status messages and
+    closes still go through the consumer."""
+
+    def __init__(self, protocol) -> None:
+        self.protocol = protocol
+        try:
+            from twisted.internet.tcp import Connection
+        except ImportError:  # pragma: no cover - daphne brings Twisted
+            Connection = ()  # noqa: N806
+        self.direct = isinstance(protocol.transport, Connection)
+
+    def is_open(self) -> bool:
+        protocol = self.protocol
+        transport = protocol.transport
+        if protocol.state != protocol.STATE_OPEN or transport is None:
+            return False
+        if getattr(transport, "disconnecting", False):
+            return False
+        connection = getattr(protocol.server, "connections", {}).get(protocol)
+        return connection is not None and not connection.get("disconnected")
+
+    def unsent(self) -> int:
+        """Bytes written to this viewer that its socket has not taken yet (Twisted's buffer
+        and autobahn's queue)."""
+        protocol = self.protocol
+        transport = protocol.transport
+        try:
+            held = len(transport.dataBuffer) - transport.offset + transport._tempDataLen
+        except (AttributeError, TypeError):
+            held = 0  # another transport (TLS): never skipped
+        return held + len(protocol.send_queue)
+
+    def backed_up(self) -> bool:
+        """Whether a frame now would queue behind unsent bytes (or the socket closed)."""
+        return not self.is_open() or self.unsent() > 0
+
+    def prepare(self, frame: bytes):
+        return self.protocol.factory.prepareMessage(frame, isBinary=True, doNotCompress=True)
+
+    def write(self, prepared) -> None:
+        """The prepared frame to this viewer; call only when not :meth:`backed_up`."""
+        protocol = self.protocol
+        if not self.direct:
+            protocol.sendPreparedMessage(prepared)
+            return
+        data: bytes = prepared.payloadHybi
+        transport = protocol.transport
+        try:
+            sent = transport.socket.send(data)
+        except OSError:  # full (EAGAIN), or gone: Twisted's write finds out and closes
+            sent = 0
+        if sent < len(data):
+            transport.write(data[sent:] if sent else data)
+
+
+_WIRE_NEEDS = ("sendPreparedMessage", "factory", "transport", "send_queue", "server", "state")
+
+
+def wire_of(viewer) -> Wire | None:
+    """The daphne websocket under a Channels consumer, found through its ASGI ``send`` (daphne
+    passes ``partial(server.handle_reply, protocol)``; Channels' session middleware wraps it,
+    keeping daphne's as ``real_send``); cached on the viewer. ``None`` under another server
+    (or in tests that fake one): the consumer's own ``send`` then."""
+    try:
+        return viewer.__dict__["_frame_wire"]
+    except (KeyError, AttributeError):
+        pass
+    wire = None
+    send = getattr(viewer, "base_send", None)
+    for _ in range(8):  # a few middlewares deep at most
+        if isinstance(send, functools.partial):
+            protocol = send.args[0] if send.args else None
+            if all(hasattr(protocol, name) for name in _WIRE_NEEDS):
+                wire = Wire(protocol)
+            break
+        send = getattr(getattr(send, "__self__", None), "real_send", None)
+        if send is None:
+            break
+    try:
+        viewer.__dict__["_frame_wire"] = wire
+    except AttributeError:
+        pass
+    return wire
 
 
 def may_watch(user, event: Event, token: str) -> bool:

@@ -90,3 +90,70 @@ def test_the_bench_runs_with_tiny_settings_and_ends_with_its_key_figures() -> No
     assert float(values["frames_per_viewer"]) > 0, last
     assert float(values["race_fps"]) > 0 and float(values["sim_steps_per_s"]) > 0, last
     assert "the same race unpaced and live (steps, each car's outcome): yes" in out.stdout
+
+
+def test_a_viewer_reads_every_message_however_the_socket_cuts_the_bytes(bench) -> None:
+    """The bench's viewer parses messages where the socket put them (``recv_into`` its buffer):
+    whatever the reads' sizes, each whole frame message is timed and its race clock read,
+    fragments joined, daphne's pings answered; a refused handshake fails the connection."""
+    import asyncio
+
+    from racing.framecodec import encode_frame
+
+    class Transport:
+        def __init__(self) -> None:
+            self.written: list[bytes] = []
+            self.closed = False
+
+        def write(self, data: bytes) -> None:
+            self.written.append(data)
+
+        def close(self) -> None:
+            self.closed = True
+
+    def message(opcode: int, payload: bytes, fin: bool = True) -> bytes:
+        n = len(payload)
+        size = bytes([n]) if n < 126 else (bytes([126]) + n.to_bytes(2, "big") if n < 65536
+                                           else bytes([127]) + n.to_bytes(8, "big"))  # fmt: skip
+        return bytes([(0x80 if fin else 0) | opcode]) + size + payload
+
+    frames = [encode_frame({"timing": {"clock_s": k / 15}}, b"J" * size)
+              for k, size in enumerate([10, 300, 70_000, 2_000_000, 5])]  # fmt: skip
+    stream = b"HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\n\r\n"
+    stream += message(0x2, frames[0]) + message(0x9, b"hi") + message(0x2, frames[1])
+    stream += message(0x2, frames[2]) + message(0x2, frames[3])
+    stream += message(0x2, frames[4][:7], fin=False) + message(0x0, frames[4][7:])
+
+    async def feed(chunk_sizes) -> tuple[list, Transport]:
+        times: list = []
+        protocol = bench.ViewerProtocol(b"GET / HTTP/1.1\r\n\r\n", times)
+        transport = Transport()
+        protocol.connection_made(transport)
+        at, k = 0, 0
+        while at < len(stream):
+            buffer = protocol.get_buffer(-1)
+            n = min(chunk_sizes[k % len(chunk_sizes)], len(buffer), len(stream) - at)
+            buffer[:n] = stream[at : at + n]
+            protocol.buffer_updated(n)
+            at, k = at + n, k + 1
+        assert protocol.accepted.done() and protocol.accepted.exception() is None
+        return times, transport
+
+    for sizes in ([1, 4093], [3, 7000, 1], [65536], [len(stream)]):
+        times, transport = asyncio.run(feed(sizes))
+        assert [clock for _, clock in times] == [k / 15 for k in range(5)], sizes
+        assert transport.written[0].startswith(b"GET ")
+        pong = transport.written[1]
+        assert pong[0] == 0x8A and pong[1] == 0x80 | 2  # a masked pong of 2 bytes
+        assert bytes(b ^ pong[2 + i % 4] for i, b in enumerate(pong[6:])) == b"hi"
+
+    async def refused() -> BaseException | None:
+        protocol = bench.ViewerProtocol(b"GET / HTTP/1.1\r\n\r\n", [])
+        protocol.connection_made(Transport())
+        buffer = protocol.get_buffer(-1)
+        answer = b"HTTP/1.1 403 Forbidden\r\n\r\n"
+        buffer[: len(answer)] = answer
+        protocol.buffer_updated(len(answer))
+        return protocol.accepted.exception()
+
+    assert isinstance(asyncio.run(refused()), ConnectionError)

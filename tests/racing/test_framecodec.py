@@ -72,3 +72,24 @@ def test_deep_or_huge_headers_and_frames_are_refused_both_ways() -> None:
     with pytest.raises(FrameError, match="JSON object"):
         encode_frame([1], JPEG)  # type: ignore[arg-type]
     assert frame_time(encode_frame({"t": "soon"}, JPEG)) is None
+
+
+def test_the_header_depth_fast_path_agrees_with_the_byte_walk() -> None:
+    """Every reader runs the depth check on every frame, so the usual header (no escaped quote
+    or backslash) takes a fast path; on any text it gives the byte walk's depth: strings with
+    brackets, unterminated strings, unbalanced and mismatched brackets, escapes."""
+    import random
+
+    from racing.framecodec import _raw_depth, _walk_depth
+
+    cases = [b"", b"{}", b'{"a":[1,{"b":[[]]}]}', b'{"a":"[[[{{{"}', b'{"a":"[[[', b"]]][[",
+             b"[}{]", b'"\\"[[["[', b'["\\\\"[', b'{"u":"\\u2713[","v":[[]]}', b"((({[",
+             b'"""[']  # fmt: skip
+    rng = random.Random(48)
+    alphabet = b'[]{}"\\a:,u'
+    cases += [bytes(rng.choice(alphabet) for _ in range(rng.randint(0, 40))) for _ in range(20_000)]
+    for raw in cases:
+        assert _raw_depth(raw) == _walk_depth(raw), raw
+    header = {"timing": {"cars": [{"sectors": [1.0, 2.0], "name": "A [x] {y}"}] * 4}, "t": 1.0}
+    assert decode_header(encode_frame(header, JPEG))[0] == header
+    assert _raw_depth(b'{"a":[[{"b":"]]]]"}]]}') == 4
