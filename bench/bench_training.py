@@ -89,6 +89,10 @@ list in ``model_metadata.json``'s form, checked as the console checks one
 (``--actions '[{"steering_angle": 0, "speed": 4}, …]'``: the racing preset before "Why seeds
 stall"); DeepRacer's defaults keep theirs.
 
+``--max-steps N`` (an experiment's screen) stops a run that has not reached its goal after N
+environment steps, as ``--minutes`` does after its time: a lower bound, printed ``>…``, but the
+same on any machine and under any load.
+
 ``--target-kl X`` (an experiment; the presets and the console set none) trains with PPO's
 ``target_kl`` = X: an update stops its epochs at the first minibatch whose approximate KL
 exceeds 1.5 × X. Each iteration's line then adds the epochs its update ran (an epoch stopped
@@ -226,6 +230,8 @@ class UntilGoal(TrainingHooks):
         self.show_epochs = show_epochs
         self.model: object | None = None
         """The trained model (set once built): its epoch count (SB3's ``_n_updates``)."""
+        self.max_steps: int | None = None
+        """``--max-steps``: stop a run that has not reached the goal after this many steps."""
 
     def on_iteration(self, result: IterationResult, checkpoint: bytes, rows: list) -> None:
         run, ev = self.run, result.evaluation
@@ -257,6 +263,8 @@ class UntilGoal(TrainingHooks):
               + (f"  epochs {new_epochs}" if self.show_epochs else ""), flush=True)  # fmt: skip
 
     def should_stop(self) -> bool:
+        if self.max_steps is not None and self.run.total_steps >= self.max_steps:
+            return True
         return self.run.seconds is not None
 
 
@@ -482,6 +490,7 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
             raise SystemExit(f"--target-kl: {preset.algorithm} has no target_kl (PPO only)")
         loop.model.target_kl = args.target_kl
     hooks.model = loop.model
+    hooks.max_steps = getattr(args, "max_steps", None)
     loop.run()
     run.wall_s = time.monotonic() - start
     return run
@@ -885,6 +894,10 @@ def main() -> None:
                         help="start at this seed (K..K+N-1): one process per seed runs them side "
                              "by side")  # fmt: skip
     parser.add_argument("--minutes", type=float, default=8.0, help="time limit of one run")
+    parser.add_argument("--max-steps", type=int, default=None,
+                        help="an experiment's screen: stop a run that has not reached the "
+                        "goal after this many environment steps (a lower bound, as "
+                        "--minutes)")  # fmt: skip
     parser.add_argument("--lap-limit", type=float, default=10.0, help="fast: slowest lap (s)")
     parser.add_argument("--setups", nargs="+", choices=("defaults", "fast"),
                         default=["defaults", "fast"])  # fmt: skip

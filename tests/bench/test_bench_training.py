@@ -315,3 +315,14 @@ def test_suite_runs_the_racing_preset_first_then_the_defaults_where_their_probe_
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(SystemExit, match="--baseline .*bad.json: not a --suite --json file"):
         bench.read_baseline(tmp_path / "bad.json")
+
+
+def test_max_steps_stops_a_run_that_has_not_reached_the_goal_as_a_lower_bound(bench) -> None:
+    r = bench.Run("fast", 0)
+    hooks = bench.UntilGoal(r, None)
+    r.total_steps = 30_000
+    assert not hooks.should_stop()  # no --max-steps: only the goal (or --minutes) stops it
+    hooks.max_steps = 30_000
+    assert hooks.should_stop() and r.steps is None  # stopped, the goal not reached
+    hooks.max_steps, r.total_steps = 40_000, 12_000
+    assert not hooks.should_stop()
