@@ -9,11 +9,14 @@ evaluations in a row, every lap at most ``--lap-limit`` s, 10.0) the way a user'
 - **clean**: the simulator as it is;
 - **randomised**: the outside-world setting a racer should use, the recommended families
   (light, look, camera, car: :data:`racing.conditions.RECOMMENDED_FAMILIES`) at their default
-  training ranges (``RacingEnv(conditions=ConditionsSpec.default(RECOMMENDED_FAMILIES))``:
-  each training episode draws its own conditions; the evaluations that judge the goal drive in
-  the clean world). For diagnosis, ``--families`` trains under other families (``latency``
-  too), ``--widest`` at their widest ranges
-  (``ConditionsSpec.widest()``, what the check tests up to), and ``--max-steps`` also stops
+  training ranges with the recommended curriculum (``--ramp-episodes``, default
+  :data:`racing.conditions.RECOMMENDED_RAMP_EPISODES`: the draws' strength grows over each
+  env's first 80 episodes; 0 turns it off) (``RacingEnv(conditions=ConditionsSpec.default(
+  RECOMMENDED_FAMILIES).with_ramp(80))``: each training episode draws its own conditions; the
+  evaluations that judge the goal drive in the clean world). For diagnosis, ``--families``
+  trains under other families (``latency`` too), ``--widest`` at their widest ranges
+  (``ConditionsSpec.widest()``, what the check tests up to), ``--conditions`` under a whole
+  setting given as JSON, and ``--max-steps`` also stops
   a run after that many environment steps (steps compare across machine loads; seconds do
   not).
 
@@ -35,7 +38,8 @@ clean_lap_loss_pct <= 10, steps_loss_pct <= 50.
     .venv/bin/python bench/bench_readiness.py [--seeds 3] [--first-seed 0] [--minutes 8]
         [--lap-limit 10.0] [--track reinvent_base] [--worlds clean randomised]
         [--strengths 0.33 0.67 1.0] [--laps 2] [--episodes 1] [--device cpu]
-        [--families light look ...] [--widest] [--max-steps N]
+        [--families light look ...] [--widest] [--ramp-episodes N] [--conditions JSON]
+        [--max-steps N]
 
 A smoke test: ``--seeds 1 --minutes 1 --laps 1 --strengths 1.0``. The machine (CPU, cores,
 load average before and after) is printed with the figures: training shares the cores.
@@ -46,6 +50,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import json
 import math
 import statistics
 import sys
@@ -57,7 +62,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # run as a script: its
 
 import bench_training as bt  # noqa: E402
 
-from racing.conditions import FAMILIES, RECOMMENDED_FAMILIES, ConditionsSpec  # noqa: E402
+from racing.conditions import (  # noqa: E402
+    FAMILIES,
+    RECOMMENDED_FAMILIES,
+    RECOMMENDED_RAMP_EPISODES,
+    ConditionsSpec,
+)
 from training.rl.algorithms import resolve_device, set_torch_threads  # noqa: E402
 from training.rl.checkpoints import load_checkpoint  # noqa: E402
 from training.rl.evaluation import sb3_policy  # noqa: E402
@@ -78,6 +88,9 @@ class KeepGoal(bt.UntilGoal):
         self.goal_checkpoint: bytes | None = None
         self.last_checkpoint: bytes | None = None
         self.max_steps: int | None = None
+        self.episodes = 0
+        """Training episodes so far, every env together (a curriculum counts each env's)."""
+        self.goal_episodes: int | None = None
 
     def should_stop(self) -> bool:
         over = self.max_steps is not None and self.run.total_steps >= self.max_steps
@@ -86,8 +99,10 @@ class KeepGoal(bt.UntilGoal):
     def on_iteration(self, result, checkpoint: bytes, rows: list) -> None:
         super().on_iteration(result, checkpoint, rows)
         self.last_checkpoint = checkpoint
+        self.episodes += int(result.episodes)
         if self.run.seconds is not None and self.goal_checkpoint is None:
             self.goal_checkpoint = checkpoint
+            self.goal_episodes = self.episodes
 
 
 @dataclasses.dataclass
@@ -95,6 +110,8 @@ class Model:
     world: str
     run: bt.Run
     checkpoint: bytes | None
+    episodes: int | None = None
+    """Training episodes (every env together) to the goal, or to the end when it missed it."""
     cells: list[dict] = dataclasses.field(default_factory=list)
     verdict: str = ""
     check_s: float = 0.0
@@ -107,16 +124,26 @@ class Model:
 
 @contextlib.contextmanager
 def outside_world(
-    world: str, families: tuple[str, ...] = RECOMMENDED_FAMILIES, *, widest: bool = False
+    world: str,
+    families: tuple[str, ...] = RECOMMENDED_FAMILIES,
+    *,
+    widest: bool = False,
+    ramp_episodes: int = 0,
+    setting: dict | None = None,
 ):
     """bench_training's env spec, with the outside-world setting (``families`` at their
-    default training ranges, or at their ``widest``) in the randomised world."""
+    default training ranges, or at their ``widest``; a curriculum of ``ramp_episodes``
+    episodes per env; or ``setting``, a whole :meth:`ConditionsSpec.to_dict`) in the randomised
+    world."""
     if world == "clean":
         yield
         return
     plain = bt.track_spec
     make = ConditionsSpec.widest if widest else ConditionsSpec.default
-    setting = make(families).to_dict()
+    if setting is None:
+        setting = make(families).with_ramp(ramp_episodes).to_dict()
+    else:
+        setting = ConditionsSpec.from_dict(setting).to_dict()
 
     def randomised(*args, **kwargs) -> EnvSpec:
         return dataclasses.replace(plain(*args, **kwargs), conditions=setting)
@@ -136,10 +163,13 @@ def train(world: str, seed: int, args: argparse.Namespace, scratch: Path) -> Mod
         hooks[-1].max_steps = args.max_steps
         return hooks[-1]
 
-    with outside_world(world, tuple(args.families), widest=args.widest):
+    with outside_world(world, tuple(args.families), widest=args.widest,
+                       ramp_episodes=args.ramp_episodes, setting=args.conditions):  # fmt: skip
         run = bt.run_one(bt.racing_setup(args), seed, args, scratch, make_hooks=make_hooks)
-    kept = hooks[-1].goal_checkpoint or hooks[-1].last_checkpoint
-    return Model(world, run, kept)
+    hook = hooks[-1]
+    kept = hook.goal_checkpoint or hook.last_checkpoint
+    episodes = hook.goal_episodes if hook.goal_episodes is not None else hook.episodes
+    return Model(world, run, kept, episodes)
 
 
 def check(model: Model, plan: ReadinessPlan, track: str) -> None:
@@ -242,6 +272,21 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="the randomised world at the widest ranges, not the training ones",
     )
     parser.add_argument(
+        "--ramp-episodes",
+        type=int,
+        default=RECOMMENDED_RAMP_EPISODES,
+        help="the randomised world's curriculum: the draws' strength grows over each env's "
+        f"first N episodes (ConditionsSpec.ramp_episodes; default {RECOMMENDED_RAMP_EPISODES}, "
+        "the recommended one; 0: none)",
+    )
+    parser.add_argument(
+        "--conditions",
+        type=json.loads,
+        default=None,
+        help="diagnosis: the randomised world's whole setting as JSON "
+        "(ConditionsSpec.to_dict(); overrides --families, --widest, --ramp-episodes)",
+    )
+    parser.add_argument(
         "--max-steps",
         type=int,
         default=None,
@@ -271,7 +316,8 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"{world}: racing preset seed {seed} on {args.track}", flush=True)
                 model = train(world, seed, args, Path(tmp))
                 check(model, plan, args.track)
-                print(f"    readiness check ({model.check_s:.0f} s): {model.verdict}", flush=True)
+                print(f"    training episodes, every env together: {model.episodes}; readiness "
+                      f"check ({model.check_s:.0f} s): {model.verdict}", flush=True)  # fmt: skip
                 models.append(model)
     print()
     print_table(models, tuple(f for f in FAMILIES if f in plan.families))

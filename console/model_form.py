@@ -45,7 +45,12 @@ from training.catalog import (
     parse_hyperparameters,
     preset,
 )
-from training.conditions_form import add_condition_fields, clean_conditions, condition_groups
+from training.conditions_form import (
+    RAMP_FIELD,
+    add_condition_fields,
+    clean_conditions,
+    condition_groups,
+)
 from training.models import MODEL_NAME_RE, Direction
 
 SENSORS = [("FRONT_FACING_CAMERA", "Camera"), ("STEREO_CAMERAS", "Stereo camera")]
@@ -212,7 +217,7 @@ class ModelCreateForm(RaceSettingsForm):
                                for a in DEFAULT_DISCRETE]  # fmt: skip
         self.action_rows = action_rows
         self.row_errors: dict[int, str] = {}
-        add_condition_fields(self)  # the outside world: off by default
+        add_condition_fields(self, ramp=True)  # the outside world: off by default
 
     # ---- the action space
     def _discrete_actions(self) -> list[dict] | None:
@@ -303,6 +308,10 @@ class ModelCreateForm(RaceSettingsForm):
     def condition_groups(self) -> list[dict]:
         """The "Outside world" fieldset, family by family (its template's rows)."""
         return condition_groups(self)
+
+    def conditions_ramp_field(self):
+        """The outside world's curriculum field (a model's only)."""
+        return self[RAMP_FIELD]
 
     def _race(self, data: dict) -> None:
         """``race_config``: the race settings the services accept for the race type."""

@@ -103,7 +103,10 @@ class RacingEnv(gym.Env):
     draws the same sequence: an event's entrants), else from the env's own conditions stream,
     seeded by ``reset(seed=...)`` apart from ``np_random`` (the objects' and the LIDAR's draws
     are the same with or without conditions). :meth:`set_conditions` fixes them for the
-    following episodes. The light, look and camera families change the camera images (front
+    following episodes. A spec's curriculum (``ramp_episodes``) counts this env's episodes
+    since its last seeded reset (:meth:`~racing.conditions.ConditionsSpec.strength_at`);
+    with a ``conditions_seed`` (an event's entrants) it is ignored: full strength. The
+    light, look and camera families change the camera images (front
     and stereo; :mod:`racing.conditioned_camera`); the car and latency families change the
     executed action (:class:`~racing.conditions.Actuator`; in the first ``k`` steps of a
     latency of ``k`` frames the car gets straight ahead at 0 m/s). The LIDAR, the rendered
@@ -380,7 +383,12 @@ class RacingEnv(gym.Env):
             if self._conditions_stream is None:  # never seeded: fresh entropy
                 self._conditions_stream = np.random.default_rng()
             rng = np.random.default_rng(self._conditions_stream.integers(2**63))
-        conditions = fixed if fixed is not None else spec.sample(rng)
+        if fixed is not None:
+            conditions = fixed
+        elif self.conditions_seed is not None:  # an event's: full strength from the first
+            conditions = spec.sample(rng)
+        else:  # a curriculum's strength grows with this env's own episodes
+            conditions = spec.sample(rng, spec.strength_at(self.episode))
         self.conditions = conditions
         self._eye = conditioned(self.camera, self.track, conditions, rng)
         self._actuator = Actuator(conditions) if conditions.changes_action else None

@@ -19,7 +19,14 @@ from django import forms
 
 from racing.conditions import FAMILIES, parameters
 from training.errors import ServiceError
-from training.services.conditions import FAMILY_HELP, FAMILY_LABELS, conditions_build
+from training.services.conditions import (
+    FAMILY_HELP,
+    FAMILY_LABELS,
+    MAX_RAMP_EPISODES,
+    RECOMMENDED_RAMP_EPISODES,
+    conditions_build,
+    conditions_ramp,
+)
 
 _KEY_RE = re.compile(r"\b([a-z]+)\.([a-z_]+)\b")
 
@@ -32,8 +39,32 @@ def range_names(family: str, name: str) -> tuple[str, str]:
     return f"cond_{family}_{name}_low", f"cond_{family}_{name}_high"
 
 
-def add_condition_fields(form: forms.Form) -> None:
-    """Add the fieldset's fields to ``form`` (call from ``__init__``)."""
+RAMP_FIELD = "cond_ramp_episodes"
+"""A model's curriculum (:attr:`racing.conditions.ConditionsSpec.ramp_episodes`); an event's
+form has none (every entrant meets the whole conditions from the first race)."""
+
+
+def add_condition_fields(form: forms.Form, *, ramp: bool = False) -> None:
+    """Add the fieldset's fields to ``form`` (call from ``__init__``); ``ramp``: the
+    curriculum's field too (a model's form; blank means the recommended one)."""
+    if ramp:
+        form.fields[RAMP_FIELD] = forms.IntegerField(
+            label="Ease them in over (training episodes of each car)", required=False,
+            min_value=0, max_value=MAX_RAMP_EPISODES,
+            initial=RECOMMENDED_RAMP_EPISODES,
+            help_text=(f"Each car's first training episode is the clean world; its conditions "
+                       f"grow to their whole ranges by this episode. 0: the whole ranges from "
+                       f"the first. Blank: {RECOMMENDED_RAMP_EPISODES}, the recommended "
+                       f"curriculum (with it the racing preset trained in fewer steps and "
+                       f"coped better in the readiness check than without)."),
+            error_messages={
+                "min_value": "Ease them in over: 0 or more episodes.",
+                "max_value": f"Ease them in over: at most {MAX_RAMP_EPISODES:,} episodes.",
+                "invalid": "Ease them in over: a whole number of episodes.",
+            },
+            widget=forms.NumberInput(attrs={"step": "1",
+                                            "placeholder": str(RECOMMENDED_RAMP_EPISODES)}),
+        )  # fmt: skip
     for family, params in parameters().items():
         form.fields[toggle_name(family)] = forms.BooleanField(
             label=FAMILY_LABELS.get(family, family), required=False,
@@ -75,6 +106,8 @@ def conditions_initial(stored: Mapping | None) -> dict[str, Any]:
                 continue
             low_key, high_key = range_names(family, name)
             initial[low_key], initial[high_key] = bounds[0], bounds[1]
+    if families:
+        initial[RAMP_FIELD] = conditions_ramp(stored)
     return initial
 
 
@@ -103,8 +136,14 @@ def clean_conditions(form: forms.Form, data: dict) -> None:
             ranges[f"{family}.{name}"] = (low, high)
     if bad:
         return
+    ramp = 0
+    if RAMP_FIELD in form.fields:
+        if RAMP_FIELD in form.errors:
+            return
+        typed = data.get(RAMP_FIELD)
+        ramp = RECOMMENDED_RAMP_EPISODES if typed is None else typed
     try:
-        data["conditions"] = conditions_build(families, ranges)
+        data["conditions"] = conditions_build(families, ranges, ramp_episodes=ramp)
     except ServiceError as exc:
         add_conditions_error(form, exc.message, families)
 

@@ -86,3 +86,24 @@ def test_the_tracks_page_shows_a_track_under_sampled_conditions(client) -> None:
     assert again.status_code == 304  # cached: the same bytes
     assert client.get("/tracks/racecraft_oval/conditions/4.png").status_code == 404
     assert client.get("/tracks/no_such_track/conditions/0.png").status_code == 404
+
+
+def test_the_conditions_are_eased_in_by_the_recommended_curriculum_unless_told(
+    alice_client, store_dir, reward_passed  # noqa: F811
+) -> None:
+    from racing.conditions import RECOMMENDED_RAMP_EPISODES
+
+    page = alice_client.get("/models/new/").content.decode()
+    assert 'name="cond_ramp_episodes"' in page and "Ease them in over" in page
+    assert alice_client.post("/models/new/", create_data(cond_light="on")).status_code == 302
+    model = RacingModel.objects.get()
+    assert model.conditions["ramp_episodes"] == RECOMMENDED_RAMP_EPISODES  # blank: recommended
+    shown = alice_client.get(f"/models/{model.pk}/").content.decode()
+    assert f"Eased in over each car's first {RECOMMENDED_RAMP_EPISODES} training episodes" in shown
+    data = create_data(cond_light="on", cond_ramp_episodes="0", name="no-ramp")
+    assert alice_client.post("/models/new/", data).status_code == 302
+    assert "ramp_episodes" not in RacingModel.objects.get(name="no-ramp").conditions  # 0: none
+    bad = create_data(cond_light="on", cond_ramp_episodes="-3", name="bad-ramp")
+    page = alice_client.post("/models/new/", bad).content.decode()
+    assert "Ease them in over: 0 or more episodes." in page  # refused on its field
+    assert 'value="bad-ramp"' in page and not RacingModel.objects.filter(name="bad-ramp").exists()

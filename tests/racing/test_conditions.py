@@ -132,6 +132,84 @@ def test_conditions_clean_strength_and_dict_form():
         Conditions.at_strength("weather", 0.5, np.random.default_rng(0))
 
 
+def test_a_curriculum_round_trips_and_a_setting_without_one_reads_as_before():
+    plain = ConditionsSpec.default(["light", "latency"])
+    ramped = plain.with_ramp(30)
+    assert "ramp_episodes" not in plain.to_dict() and plain.ramp_episodes == 0
+    data = json.loads(json.dumps(ramped.to_dict()))
+    assert data["ramp_episodes"] == 30 and data["families"] == plain.to_dict()["families"]
+    assert ConditionsSpec.from_dict(data) == ramped != plain
+    assert pickle.loads(pickle.dumps(ramped)) == ramped and hash(ramped) != hash(plain)
+    assert ramped.with_ramp(0) == plain  # an old setting (no field) is the same as ramp 0
+    assert [ramped.strength_at(e) for e in (0, 15, 30, 99)] == [0.0, 0.5, 1.0, 1.0]
+    assert plain.strength_at(0) == 1.0
+    for bad in (-1, 2.5, True, "10", 10**6):
+        with pytest.raises(ConditionsError, match="ramp_episodes must be"):
+            ConditionsSpec.from_dict({"families": {"light": {}}, "ramp_episodes": bad})
+    with pytest.raises(ConditionsError, match="unknown conditions key 'ramp'"):
+        ConditionsSpec.from_dict({"families": {}, "ramp": 3})
+
+
+def test_a_curriculum_scales_each_range_about_neutral_and_draws_the_same_numbers():
+    spec = ConditionsSpec.default(FAMILIES)
+    infos = parameters()
+    for seed in range(20):
+        full = spec.sample(np.random.default_rng(seed))
+        assert spec.sample(np.random.default_rng(seed), 1.0) == full  # strength 1: as before
+        assert spec.sample(np.random.default_rng(seed), 0.0).is_clean
+        half = spec.sample(np.random.default_rng(seed), 0.5)
+        for family, names in spec.ranges.items():
+            for name, (low, high) in names.items():
+                info, value = infos[family][name], half.values[family][name]
+                if info.integer:  # latency 0-1 at half strength: 0-0.5, no late frame yet
+                    assert value == 0.0
+                    continue
+                assert math.isclose(value - info.neutral,
+                                    0.5 * (full.values[family][name] - info.neutral),
+                                    abs_tol=1e-9), (family, name)  # fmt: skip
+                lo, hi = sorted((info.neutral + 0.5 * (low - info.neutral),
+                                 info.neutral + 0.5 * (high - info.neutral)))  # fmt: skip
+                assert lo - 1e-9 <= value <= hi + 1e-9
+        # The draw uses the generator alike at every strength: what follows it is the same.
+        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
+        spec.sample(a, 0.3), spec.sample(b)
+        assert a.random() == b.random()
+    # An integer range scaled to hold no whole number draws the one nearest its middle.
+    late = ConditionsSpec.from_dict({"families": {"latency": {"frames": [2, 2]}}})
+    frames = [late.sample(np.random.default_rng(0), s).values["latency"]["frames"]
+              for s in (0.2, 0.3, 0.6, 0.8, 1.0)]  # fmt: skip
+    assert frames == [0.0, 1.0, 1.0, 2.0, 2.0]
+    with pytest.raises(ConditionsError, match="strength must be 0-1"):
+        spec.sample(np.random.default_rng(0), 1.5)
+
+
+def test_an_envs_curriculum_grows_with_its_own_episodes_deterministically(reinvent):
+    spec = ConditionsSpec.default(["light", "car"])
+
+    def episodes(conditions, seed=5, n=6):
+        env = RacingEnv(reinvent, conditions=conditions)
+        out = [env.reset(seed=seed)[1]["conditions"]]
+        out += [env.reset()[1]["conditions"] for _ in range(n - 1)]
+        return out
+
+    ramped, plain = episodes(spec.with_ramp(4)), episodes(spec)
+    assert Conditions.from_dict(ramped[0]).is_clean  # episode 0: strength 0
+    light = [abs(e["light"]["brightness"]) for e in ramped]
+    assert 0 < light[1] <= 25 / 4 and 0 < light[2] <= 25 / 2  # 1/4, then 1/2 of the range
+    assert ramped[4:] == plain[4:]  # from the ramp's end: the whole ranges, the same draws
+    assert ramped[1:4] != plain[1:4]
+    assert episodes(spec.with_ramp(4).to_dict()) == ramped  # deterministic for a seed
+    again = RacingEnv(reinvent, conditions=spec.with_ramp(4))
+    again.reset(seed=5)
+    for _ in range(4):
+        again.reset()
+    assert again.reset(seed=5)[1]["conditions"] == ramped[0]  # a seeded reset starts it over
+    # An event's entrants (a conditions seed) drive at full strength from the first episode.
+    event = RacingEnv(reinvent, conditions=spec.with_ramp(4), conditions_seed=3)
+    same = RacingEnv(reinvent, conditions=spec, conditions_seed=3)
+    assert event.reset(seed=1)[1]["conditions"] == same.reset(seed=1)[1]["conditions"]
+
+
 # ------------------------------------------------------------------ the camera's frame
 def test_each_family_changes_the_frame_and_only_the_image_families_do(reinvent):
     clean = frame(reinvent, None)

@@ -16,7 +16,15 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from racing.conditions import FAMILIES, Conditions, ConditionsError, ConditionsSpec, parameters
+from racing.conditions import (
+    FAMILIES,
+    Conditions,
+    ConditionsError,
+    ConditionsSpec,
+    parameters,
+)
+from racing.conditions import MAX_RAMP_EPISODES as MAX_RAMP_EPISODES  # for forms, commands
+from racing.conditions import RECOMMENDED_RAMP_EPISODES as RECOMMENDED_RAMP_EPISODES
 from training.errors import ServiceError
 
 FAMILY_LABELS = {
@@ -62,11 +70,14 @@ def conditions_build(
     ranges: Mapping[str, tuple[float, float] | list[float]] | None = None,
     *,
     field: str = "conditions",
+    ramp_episodes: int = 0,
 ) -> dict:
     """The stored form of the families named (each at its training ranges), set by
-    ``ranges`` (``"family.parameter"`` → ``(low, high)``); ``{}`` when no family is named.
-    Raises :class:`ServiceError` naming a family or parameter that does not exist, or a
-    parameter of a family that is not on."""
+    ``ranges`` (``"family.parameter"`` → ``(low, high)``), eased in over each car's first
+    ``ramp_episodes`` training episodes (a curriculum, :attr:`ConditionsSpec.ramp_episodes`;
+    0: none; a model's setting takes :data:`RECOMMENDED_RAMP_EPISODES` by default, an event's
+    none); ``{}`` when no family is named. Raises :class:`ServiceError` naming a family or
+    parameter that does not exist, or a parameter of a family that is not on."""
     chosen = [f.strip() for f in families if f and f.strip()]
     unknown = [f for f in chosen if f not in FAMILIES]
     if unknown:
@@ -77,7 +88,11 @@ def conditions_build(
     ranges = dict(ranges or {})
     if not chosen and not ranges:
         return {}
-    data = ConditionsSpec.default(families=tuple(f for f in FAMILIES if f in chosen)).to_dict()
+    spec = ConditionsSpec.default(families=tuple(f for f in FAMILIES if f in chosen))
+    try:
+        data = spec.with_ramp(ramp_episodes).to_dict()
+    except ConditionsError as exc:
+        raise ServiceError(f"conditions: {exc}", field=field) from None
     info = parameters()
     for key, bounds in ranges.items():
         family, _, name = key.partition(".")
@@ -140,6 +155,15 @@ def conditions_summary(value: Mapping | None) -> list[dict]:
         rows.append({"family": family, "label": FAMILY_LABELS.get(family, family),
                      "ranges": ranges})  # fmt: skip
     return rows
+
+
+def conditions_ramp(value: Mapping | None) -> int:
+    """A stored setting's curriculum: the training episodes of each car over which its
+    conditions grow to their whole ranges (0: none, full strength from the first)."""
+    try:
+        return max(0, int((value or {}).get("ramp_episodes") or 0))
+    except (TypeError, ValueError):
+        return 0
 
 
 def conditions_families(value: Mapping | None) -> list[str]:

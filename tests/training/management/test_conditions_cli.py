@@ -49,3 +49,18 @@ def test_bad_settings_say_what_is_wrong(args, words) -> None:
     with pytest.raises(CommandError, match=words):
         run("--name", "bad", *args)
     assert not RacingModel.objects.exists()
+
+
+def test_the_curriculum_is_the_recommended_one_unless_told() -> None:
+    from racing.conditions import RECOMMENDED_RAMP_EPISODES
+
+    run("--name", "eased", "--conditions", "light")
+    assert RacingModel.objects.get(name="eased").conditions["ramp_episodes"] == (
+        RECOMMENDED_RAMP_EPISODES
+    )
+    run("--name", "sudden", "--conditions", "light", "--conditions-ramp", "0")
+    assert "ramp_episodes" not in RacingModel.objects.get(name="sudden").conditions
+    run("--name", "slow", "--conditions", "light", "--conditions-ramp", "400")
+    assert RacingModel.objects.get(name="slow").conditions["ramp_episodes"] == 400
+    with pytest.raises(CommandError, match="ramp_episodes must be a whole number"):
+        run("--name", "bad", "--conditions", "light", "--conditions-ramp", "-1")

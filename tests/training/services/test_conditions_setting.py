@@ -93,6 +93,21 @@ def test_training_params_yaml_records_it_under_our_own_key(alice) -> None:
     assert conditions_from_param('{"families": {"fog": {}}}') == {}
 
 
+def test_a_curriculum_is_kept_through_training_params_yaml_and_old_lines_load(alice) -> None:
+    model = create(alice, conditions={**LIGHT, "ramp_episodes": 60})
+    assert model.conditions["ramp_episodes"] == 60
+    plain = create(alice, name="m2", conditions=LIGHT).conditions
+    assert "ramp_episodes" not in plain and model.conditions["families"] == plain["families"]
+    text = training_params(model)
+    flat = read_training_params({"ip/training_params.yaml": text.encode()})
+    assert conditions_from_param(flat["RACECRAFT_CONDITIONS"]) == model.conditions
+    old = '{"families":{"light":{}}}'  # a line written before the curriculum: no field
+    assert "ramp_episodes" not in conditions_from_param(old)
+    assert conditions_from_param(old)["families"]["light"]["gamma"] == [0.85, 1.2]
+    with pytest.raises(ServiceError, match="ramp_episodes must be"):
+        create(alice, name="m3", conditions={**LIGHT, "ramp_episodes": -5})
+
+
 @pytest.mark.slow  # the import runs in a bounded child process
 def test_our_archive_imports_with_its_setting(alice, ppo_discrete) -> None:
     model = create(alice, conditions=LIGHT,

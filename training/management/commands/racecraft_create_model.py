@@ -73,12 +73,17 @@ def condition_range(text: str) -> tuple[str, tuple[float, float]]:
     return key.strip(), bounds
 
 
+RAMP_DEFAULT = services_conditions.RECOMMENDED_RAMP_EPISODES
+
+
 def given_conditions(options: dict) -> dict:
     """The outside-world setting from ``--conditions`` and ``--condition`` ({}: off)."""
     families = [f for f in (options.get("conditions") or "").split(",") if f.strip()]
     ranges = dict(condition_range(text) for text in options.get("condition") or ())
     try:
-        return services_conditions.conditions_build(families, ranges)
+        return services_conditions.conditions_build(
+            families, ranges, ramp_episodes=options.get("conditions_ramp", RAMP_DEFAULT)
+        )
     except services.ServiceError as exc:
         raise CommandError(f"--conditions: {exc.message}") from None
 
@@ -207,8 +212,17 @@ class Command(BaseCommand):
             action="append",
             default=[],
             metavar="FAMILY.PARAMETER=LOW:HIGH",
-            help="narrow one parameter's range of a family turned on with --conditions "
-            "(repeatable), e.g. --condition light.brightness=-20:20",
+            help="set one parameter's range of a family turned on with --conditions, anywhere "
+            "within its widest (repeatable), e.g. --condition light.brightness=-20:20",
+        )
+        parser.add_argument(
+            "--conditions-ramp",
+            type=int,
+            default=RAMP_DEFAULT,
+            metavar="EPISODES",
+            help="ease the conditions in over each car's first EPISODES training episodes, "
+            f"from the clean world to their whole ranges (default {RAMP_DEFAULT}, the "
+            "recommended curriculum; 0: the whole ranges from the first)",
         )
 
     def handle(self, *args: Any, **options: Any) -> None:
