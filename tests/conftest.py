@@ -63,15 +63,45 @@ def clear_cache() -> None:
     _delete_prefixed(settings.REDIS_URL, f"{settings.REDIS_PREFIX}cache:")
 
 
+PER_ROW_KEYS = (
+    "reward-validation",
+    "background",
+    "bucket-import",
+    "race-speed",
+    "watching",
+    "frames",
+)
+"""The families of ``<prefix>racecraft:<family>:…`` keys named after database rows (a user's,
+a job's, a race's id). The prefix keeps test processes apart (each xdist worker imports this
+file and draws its own), but within one process the next test's rows reuse the ids: on
+SQLite a rolled-back test gives its ids back, so every test's first race is race 1, and a
+key a race left (what its car drives at, kept an hour) would be read as the next test's. The
+others are named by random ids (``sim:<uuid>``) or are not keys (``broadcast:``, a pub/sub
+channel); tests/leaderboard/test_speed.py checks that every family is one or the other."""
+
+
 @pytest.fixture(autouse=True)
 def _no_per_user_state_between_tests() -> Iterator[None]:
     """Passed validations and the per-user counts of validations, imports and exports live
-    in Redis under user ids, which the next test's users reuse, and the throttles count per
-    address (every test client is 127.0.0.1): forget them all after each test."""
+    in Redis under user ids, which the next test's users reuse, as do a race's speed keys and
+    a job's watchers and frame counts under its id (:data:`PER_ROW_KEYS`), and the throttles
+    count per address (every test client is 127.0.0.1): forget them all after each test."""
     yield
     clear_cache()
-    for room in ("reward-validation", "background"):
-        _delete_prefixed(settings.REDIS_URL, f"{settings.REDIS_PREFIX}racecraft:{room}:")
+    forget_per_row_keys()
+
+
+def forget_per_row_keys() -> None:
+    """Delete this run's keys of the :data:`PER_ROW_KEYS` families (one scan)."""
+    base = f"{settings.REDIS_PREFIX}racecraft:"
+    families = tuple(f"{base}{family}:".encode() for family in PER_ROW_KEYS)
+    client = redis.Redis.from_url(settings.REDIS_URL)
+    try:
+        keys = [k for k in client.scan_iter(match=f"{base}*", count=1000) if k.startswith(families)]
+        if keys:
+            client.delete(*keys)
+    finally:
+        client.close()
 
 
 @pytest.fixture(scope="session")

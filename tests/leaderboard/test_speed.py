@@ -1,9 +1,13 @@
 """Live speed control on race day (leaderboard/speed.py, speedviews.py; training's
 race_control): the racer on track sets their car's multiplier; refused when the event has it
-off, outside the racer's turn, for anyone else, and for bad values; what the race worker reads.
+off, outside the racer's turn, for anyone else, and for bad values; what the race worker reads;
+whose the keys are (an install's own, and forgotten between tests, whose race ids repeat).
 Ada races the turn on track, Bo waits for his; Charlie is a spectator. Fran runs the day."""
 
 from __future__ import annotations
+
+import re
+from pathlib import Path
 
 import pytest
 import redis
@@ -12,15 +16,22 @@ from league_helpers import make_event, make_model, make_user
 
 from leaderboard import bracket, raceday, speed
 from leaderboard.models import Notification, RaceDaySlot, Submission
+from tests.conftest import PER_ROW_KEYS, forget_per_row_keys
 from training.models import JobStatus, RaceJob
 from training.services import race_control
 
 pytestmark = pytest.mark.django_db
 
 
+ROOT = Path(__file__).resolve().parents[2]
+NOT_STARTED = b"Your car has not started yet: set your speed now or once it drives."
+
+
 @pytest.fixture(autouse=True)
 def _no_speeds_between_tests(settings):
-    """Race ids come round again in the next test's database: forget their speed keys."""
+    """Race ids come round again in the next test's database: forget their speed keys (as
+    tests/conftest.py now does after every test of every module; kept for the modules that
+    import it)."""
     yield
     client = redis.Redis.from_url(settings.REDIS_URL)
     keys = list(client.scan_iter(match=f"{settings.REDIS_PREFIX}racecraft:race-speed:*"))
@@ -165,3 +176,66 @@ def test_stopping_the_race_on_track_goes_through_trainings_service(day, fran):
     ada = Submission.objects.get(event=event, model_name="ada-car").racer
     with pytest.raises(speed.LeagueError, match="this race is over"):
         speed.race_speed_change(event=event, user=ada, multiplier="1.0")
+
+
+def page_says(client, user, event) -> tuple[bytes, bytes]:
+    """The speed page's value and what it says the car drives at."""
+    client.force_login(user)
+    page = client.get(reverse("league-race-speed", args=[event.pk]))
+    assert page.status_code == 200
+    value = re.search(rb'data-testid="speed-value">([^<]*)<', page.content)
+    driving = re.search(rb'data-testid="speed-driving"[^>]*>([^<]*)<', page.content)
+    assert value and driving, page.content
+    return value.group(1), driving.group(1)
+
+
+def test_another_install_s_race_of_the_same_id_is_not_this_one(client, day, settings):
+    """Two installs, or two test processes, on one Redis each number their races from 1: the
+    keys of one's race 1 are not the other's (REDIS_PREFIX, drawn per xdist worker in the
+    tests)."""
+    event, ada, _, race = day
+    ours = settings.REDIS_PREFIX
+    race_control.race_speed_set(race=race, index=0, multiplier="1.3")
+    race_control.RaceSpeeds(race.pk, 1).value(0, 0.0)  # our race drives at it
+    settings.REDIS_PREFIX = theirs = f"{ours}other-install:"
+    try:
+        assert race_control.race_speeds(race.pk, 1) == [None]
+        assert race_control.race_speed_applied(race.pk, 0) is None
+        assert page_says(client, ada.racer, event) == (b"1.00", NOT_STARTED)
+        race_control.race_speed_set(race=race, index=0, multiplier="0.7")  # their race 1
+        race_control.RaceSpeeds(race.pk, 1).value(0, 0.0)
+    finally:
+        settings.REDIS_PREFIX = ours
+        shared = redis.Redis.from_url(settings.REDIS_URL)
+        left = list(shared.scan_iter(match=f"{theirs}*"))
+        if left:
+            shared.delete(*left)
+        shared.close()
+    assert race_control.race_speed_of(race.pk, 0) == 1.3
+    assert page_says(client, ada.racer, event) == (b"1.30", "On track now at 1.30×.".encode())
+
+
+def test_what_an_earlier_race_of_the_same_id_left_is_forgotten_before_the_next_test(client, day):
+    """On SQLite a test's rolled-back rows give their ids back: the next test's first race is
+    race 1 again. Keys a finished race left under its id (what its car drove at, kept an
+    hour) would show on the next race 1's page; tests/conftest.py forgets them after each
+    test (:func:`forget_per_row_keys`, run here by hand)."""
+    event, ada, _, race = day
+    race_control.RaceSpeeds(race.pk, 1).value(0, 0.0)  # a race with this id drove at 1.0
+    assert page_says(client, ada.racer, event) == (b"1.00", "On track now at 1.00×.".encode())
+    forget_per_row_keys()
+    assert page_says(client, ada.racer, event) == (b"1.00", NOT_STARTED)
+
+
+def test_every_family_of_keys_named_after_rows_is_forgotten_between_tests():
+    """Every ``racecraft:<family>:`` key the code builds is either forgotten after each test
+    (tests/conftest.py's PER_ROW_KEYS: named after user, job or race ids, which repeat from
+    test to test on SQLite) or named so it cannot repeat: a new family named after rows must
+    join PER_ROW_KEYS."""
+    random_or_not_a_key = {"sim", "broadcast"}  # sim:<uuid>; broadcast: a pub/sub channel
+    found = set()
+    for package in ("console", "leaderboard", "racing", "training"):
+        for path in (ROOT / package).rglob("*.py"):
+            found |= set(re.findall(r"\bracecraft:([a-z][a-z-]*):", path.read_text()))
+    assert {"race-speed", "watching", "sim"} <= found  # the search finds them
+    assert found - random_or_not_a_key == set(PER_ROW_KEYS)

@@ -33,6 +33,7 @@ from training.sandbox import (
     evaluate_reward,
     isolation_support,
 )
+from training.sandbox.cgroup import MemoryCgroup
 from training.sandbox.requirements import ALLOW_WEAK_ENV
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -165,13 +166,66 @@ def _sysv_objects() -> list[str]:
         return f.read().splitlines()[1:]
 
 
-def _available_bytes() -> int:
-    return psutil.virtual_memory().available
+SHMEM_GONE_WITHIN_S = 60.0
+"""The child's IPC namespace, with its segments, is freed by the kernel's work queue after an
+RCU grace period once the child is reaped: at once on a quiet machine, later on a busy one."""
+
+
+def _cgroup_value(path: Path, name: str, key: str | None = None) -> int | None:
+    """A number the kernel keeps for the cgroup at ``path``: file ``name``, or its line
+    ``key`` (memory.stat); None where this kernel has no such file or line."""
+    try:
+        text = (path / name).read_text()
+    except OSError:
+        return None
+    if key is None:
+        return int(text)
+    for line in text.splitlines():
+        found, _, value = line.partition(" ")
+        if found == key:
+            return int(value)
+    return None
+
+
+@pytest.fixture
+def child_memory(monkeypatch: pytest.MonkeyPatch) -> dict[str, int | None]:
+    """What the sandbox child held, as its memory cgroup counted it, read by the sandbox's own
+    :class:`MemoryCgroup` just before it deletes the cgroup, the child reaped: ``start_up``
+    (held when the cgroup was tightened, before user code ran), ``peak`` (the most it ever
+    held: ``memory.max_usage_in_bytes``, v2 ``memory.peak``) and ``shmem_left`` (shared memory,
+    System V's included, still charged to it once the child's IPC namespace is freed: waited
+    for up to :data:`SHMEM_GONE_WITHIN_S`). Only the child's own memory: the host's other
+    processes, whatever they take meanwhile, count elsewhere. Empty when no memory cgroup was
+    made."""
+    seen: dict[str, int | None] = {}
+    tighten, remove = MemoryCgroup.tighten, MemoryCgroup.remove
+
+    def tighten_seen(self: MemoryCgroup, allowance: int) -> str | None:
+        seen["start_up"] = self.usage()
+        return tighten(self, allowance)
+
+    def remove_seen(self: MemoryCgroup) -> None:
+        if self.path is not None:
+            v1 = self.version == 1
+            seen["peak"] = _cgroup_value(
+                self.path, "memory.max_usage_in_bytes" if v1 else "memory.peak"
+            )
+            deadline = time.monotonic() + SHMEM_GONE_WITHIN_S
+            while True:
+                seen["shmem_left"] = _cgroup_value(self.path, "memory.stat", "shmem")
+                if not seen["shmem_left"] or time.monotonic() > deadline:
+                    break
+                time.sleep(0.05)
+        remove(self)
+
+    monkeypatch.setattr(MemoryCgroup, "tighten", tighten_seen)
+    monkeypatch.setattr(MemoryCgroup, "remove", remove_seen)
+    return seen
 
 
 @pytest.mark.parametrize("disabled", [(), ("seccomp",), ("seccomp", "cgroup_memory")])
 def test_system_v_memory_cannot_grow_past_the_limit(
-    disabled: tuple[str, ...], monkeypatch: pytest.MonkeyPatch
+    disabled: tuple[str, ...], monkeypatch: pytest.MonkeyPatch, child_memory: dict
 ) -> None:
     if disabled == ("seccomp",) and isolation_support().get("cgroup_memory") != "active":
         pytest.skip("no memory cgroup this process may write: seccomp alone bounds it here")
@@ -179,7 +233,6 @@ def test_system_v_memory_cannot_grow_past_the_limit(
         monkeypatch.setenv(ALLOW_WEAK_ENV, "1")
     limits = SandboxLimits(per_call_seconds=30.0, cpu_seconds=60, memory_bytes=256 << 20)
     shm_before = _sysv_objects()
-    available = _available_bytes()
     with host_intact():
         if disabled == ("seccomp", "cgroup_memory"):
             # Neither the kernel's memory limit nor seccomp's refusal of shared memory: the
@@ -200,8 +253,20 @@ def test_system_v_memory_cannot_grow_past_the_limit(
         assert result.layers["cgroup_memory"] == "active"
         assert "memory limit" in error.message, error.message
     assert _sysv_objects() == shm_before  # nothing outlived the child on the host
-    # 2 GB were asked for; the host lost at most about the limit for a moment, and has it back.
-    assert _available_bytes() > available - (512 << 20)
+    # What the child cost the host, counted by its memory cgroup (not the host's free memory,
+    # which everything else on a busy machine takes and gives back meanwhile).
+    if disabled:  # the memory cgroup held the child: it counted all the child cost the host
+        assert child_memory.keys() == {"start_up", "peak", "shmem_left"}, child_memory
+    if "peak" in child_memory:
+        # 2 GB were asked for; the host lost at most the limit beyond the child's start-up
+        # for a moment (a few pages' slack: the kernel's charge batch)...
+        start_up, peak = child_memory["start_up"], child_memory["peak"]
+        if peak is not None:
+            assert peak <= start_up + limits.memory_bytes + (4 << 20), child_memory
+            if disabled:  # the segments were the child's own: its cgroup counted them
+                assert peak > start_up + limits.memory_bytes // 2, child_memory
+        # ... and has it back: no segment outlived the child's namespace.
+        assert child_memory["shmem_left"] == 0, child_memory
 
 
 BOMB_SCRIPT = """

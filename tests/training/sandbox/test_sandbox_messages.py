@@ -8,8 +8,8 @@ import uuid
 
 import numpy as np
 import pytest
+from django.conf import settings
 
-from tests.conftest import REDIS_PREFIX
 from tests.training.sandbox.sandbox_support import host_intact, real_params
 from training.rollout.streamed import StreamedExperience
 from training.rollout.streams import Session, StreamError
@@ -245,7 +245,7 @@ def test_forged_reset_replies_are_malformed_data(reply: object) -> None:
 def test_forged_stream_messages_are_a_clear_error(body: bytes, redis_url: str) -> None:
     """What reaches the trainer's experience stream is decoded checked: a forged message ends
     the run with a clear error, never an exception of the decoder."""
-    session = Session(redis_url, REDIS_PREFIX, uuid.uuid4().hex)
+    session = Session(redis_url, settings.REDIS_PREFIX, uuid.uuid4().hex)
     session.create()
     try:
         session.r.xadd(session.keys.exp, {"m": body})
