@@ -89,7 +89,9 @@ def test_the_tracks_page_shows_a_track_under_sampled_conditions(client) -> None:
 
 
 def test_the_conditions_are_eased_in_by_the_recommended_curriculum_unless_told(
-    alice_client, store_dir, reward_passed  # noqa: F811
+    alice_client,
+    store_dir,
+    reward_passed,  # noqa: F811
 ) -> None:
     from racing.conditions import RECOMMENDED_RAMP_EPISODES
 
