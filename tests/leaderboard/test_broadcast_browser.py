@@ -94,10 +94,20 @@ def test_the_broadcast_shows_the_tv_camera_map_pips_and_the_html_tower(browser, 
     image.save(ARTIFACTS / "broadcast-show.jpg", quality=80)
     picture = np.asarray(image)
     assert picture.shape == (1080, 1920, 3)
-    # The map, bottom right of the picture: every car's dot on it.
-    corner = picture[680:1080, 1400:1920]
-    for rgb in RACER_COLOURS[:4]:
-        assert colour_pixels(corner, rgb) > 15, rgb
+    # The map, bottom right of the picture: every car's dot on it. Two cars side by side may
+    # hide one dot under the other at one moment (a CI run caught 13 pixels of one): each dot
+    # must show in this picture or one of the next few.
+    colours = RACER_COLOURS[:4]
+    best = [0] * len(colours)
+    later = picture
+    for _ in range(20):
+        corner = later[680:1080, 1400:1920]
+        best = [max(b, colour_pixels(corner, rgb)) for b, rgb in zip(best, colours, strict=True)]
+        if min(best) > 15:
+            break
+        page.wait_for_timeout(250)
+        later = np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB"))
+    assert min(best) > 15, list(zip(colours, best, strict=True))
     # Each racer's camera: gray pictures under the PiP names.
     labels = page.eval_on_selector_all(".tv-pip-label", "ls => ls.map(l => { const r = "
                                        "l.getBoundingClientRect(); return [r.left, r.bottom, "
