@@ -64,12 +64,18 @@ def _page(
     return render(request, "leaderboard/speed.html", context, status=status)
 
 
-@login_required
-@require_http_methods(["GET", "HEAD", "POST"])
-def race_speed(request: HttpRequest, event_id: int) -> HttpResponse:
+def _viewable_event(request: HttpRequest, event_id: int) -> Event:
+    """The event, when this user may see it; else a 404 (as for no event at all)."""
     event = get_object_or_404(Event, pk=event_id)
     if not can_view_event(request.user, event):
         raise Http404("No such event")
+    return event
+
+
+@login_required
+@require_http_methods(["GET", "HEAD", "POST"])
+def race_speed(request: HttpRequest, event_id: int) -> HttpResponse:
+    event = _viewable_event(request, event_id)
     if request.method == "POST":
         try:
             value = speed_control.race_speed_change(
@@ -96,9 +102,7 @@ def race_speed(request: HttpRequest, event_id: int) -> HttpResponse:
 @login_required
 @require_http_methods(["GET", "HEAD"])
 def race_speed_turn(request: HttpRequest, event_id: int) -> JsonResponse:
-    event = get_object_or_404(Event, pk=event_id)
-    if not can_view_event(request.user, event):
-        raise Http404("No such event")
+    event = _viewable_event(request, event_id)
     try:
         turn = speed_control.live_turn_of(event=event, user=request.user)
     except speed_control.SpeedRefused as exc:
