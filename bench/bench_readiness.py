@@ -88,12 +88,17 @@ class KeepGoal(bt.UntilGoal):
         self.goal_checkpoint: bytes | None = None
         self.last_checkpoint: bytes | None = None
         self.max_steps: int | None = None
+        self.train_steps: int | None = None
+        """``--train-steps``: train on past the goal to this many steps; the last checkpoint
+        is the one checked."""
         self.episodes = 0
         """Training episodes so far, every env together (a curriculum counts each env's)."""
         self.goal_episodes: int | None = None
 
     def should_stop(self) -> bool:
         over = self.max_steps is not None and self.run.total_steps >= self.max_steps
+        if self.train_steps is not None:
+            return over or self.run.total_steps >= self.train_steps
         return super().should_stop() or over
 
     def on_iteration(self, result, checkpoint: bytes, rows: list) -> None:
@@ -161,6 +166,7 @@ def train(world: str, seed: int, args: argparse.Namespace, scratch: Path) -> Mod
     def make_hooks(*a, **k) -> KeepGoal:
         hooks.append(KeepGoal(*a, **k))
         hooks[-1].max_steps = args.max_steps
+        hooks[-1].train_steps = getattr(args, "train_steps", None)
         return hooks[-1]
 
     with outside_world(world, tuple(args.families), widest=args.widest,
@@ -168,6 +174,8 @@ def train(world: str, seed: int, args: argparse.Namespace, scratch: Path) -> Mod
         run = bt.run_one(bt.racing_setup(args), seed, args, scratch, make_hooks=make_hooks)
     hook = hooks[-1]
     kept = hook.goal_checkpoint or hook.last_checkpoint
+    if hook.train_steps is not None:
+        kept = hook.last_checkpoint
     episodes = hook.goal_episodes if hook.goal_episodes is not None else hook.episodes
     return Model(world, run, kept, episodes)
 
@@ -291,6 +299,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         type=int,
         default=None,
         help="also stop a run after this many environment steps",
+    )
+    parser.add_argument(
+        "--train-steps",
+        type=int,
+        default=None,
+        help="diagnosis: train every model on past the goal to this many environment steps "
+        "and check its last checkpoint (steps and laps to the goal are still reported)",
     )
     parser.add_argument("--device", default=None, help="the trainer's device (default cpu)")
     args = parser.parse_args(argv)

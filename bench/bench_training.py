@@ -478,6 +478,7 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
         eval_laps=EVAL_LAPS,
         eval_from_start_line=True,
         device=args.device,
+        lagged_rollout=getattr(args, "lagged_rollout", False),
     )
     hooks = (make_hooks or UntilGoal)(
         run, setup.lap_limit_s, show_epochs=args.target_kl is not None
@@ -923,6 +924,9 @@ def main() -> None:
                         help="PPO's target_kl for the trained model (default none, as the "
                              "presets): an update stops its epochs once the approximate KL "
                              "exceeds 1.5 × X")  # fmt: skip
+    parser.add_argument("--lagged-rollout", action="store_true",
+                        help="lockstep: the next rollout is driven beside the update, by "
+                             "the policy one update behind (an experiment)")  # fmt: skip
     parser.add_argument("--trainer-samples", action="store_true",
                         help="lockstep: the trainer chooses every step's actions (SB3's "
                              "collect_rollouts, the way before), not the workers")  # fmt: skip

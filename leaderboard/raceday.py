@@ -157,13 +157,16 @@ def race_day_race_finished(*, race_id: int) -> RaceDaySlot | None:
 
 
 def race_day_stop(*, event: Event, user) -> None:
-    """Stop the race on track (it keeps what it drove; the turn is done when it has
-    stopped), through training's service: the league writes no race job."""
+    """Stop the race on track, through training's service (the league writes no race job).
+    A race a worker is driving stops at its next step and keeps what it drove; the turn is
+    done when it has stopped. One still queued (no worker has claimed it yet) is canceled at
+    once: it never starts, its share of the organiser's job quota is freed, and the turn ends
+    now (training's ``race_finished``, through :mod:`leaderboard.racefinish`)."""
     _check(event, user)
     slot = RaceDaySlot.objects.filter(event=event, status=RaceDaySlot.Status.RUNNING).first()
     if slot is None or slot.race is None:
         raise LeagueError("no race is on track")
-    race_stop(race=slot.race, by=f"race day of event {event.pk} ({user})")
+    race_stop(race=slot.race, by=f"race day of event {event.pk} ({user})", cancel_queued=True)
 
 
 def race_day_spectator_link(*, event: Event, user, enabled: bool) -> str:

@@ -74,3 +74,14 @@ def test_diagnosis_options_pick_the_families_their_ranges_and_a_step_cap(bench, 
     assert not hooks.should_stop()
     hooks.run.total_steps = 500
     assert hooks.should_stop()
+
+
+def test_train_steps_trains_on_past_the_goal_and_keeps_the_last_checkpoint(bench):
+    assert bench.parse_args(["--train-steps", "40000"]).train_steps == 40000
+    assert bench.parse_args([]).train_steps is None
+    hooks = bench.KeepGoal(bench.bt.Run("fast", 0), 10.0)
+    hooks.train_steps = 1000
+    hooks.run.seconds, hooks.run.total_steps = 12.0, 800  # the goal is reached
+    assert not hooks.should_stop()  # but it trains on
+    hooks.run.total_steps = 1000
+    assert hooks.should_stop()

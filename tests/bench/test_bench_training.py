@@ -107,6 +107,32 @@ def test_each_mode_trains_as_a_console_job_of_that_mode_would(bench) -> None:
     assert streams.redis_url == "redis://127.0.0.1:6379/15"
 
 
+def test_lagged_rollout_is_an_experiments_switch_off_by_default(bench, monkeypatch) -> None:
+    """``--lagged-rollout`` reaches the run's TrainingConfig; without it (bench_stalls.py and
+    bench_readiness.py's arguments have no such attribute) the console's own lockstep loop."""
+    import argparse
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def config(**kwargs):
+        seen.append(kwargs["lagged_rollout"])
+        raise Stop
+
+    monkeypatch.setattr(bench, "TrainingConfig", config)
+    monkeypatch.setattr(bench, "track_spec", lambda *a, **k: None)
+    common = dict(actions="", track="reinvent_base", tracks_dir=None, network="", overrides={},
+                  minutes=1.0, evaluate_after=False, trainer_samples=False, device="cpu",
+                  lap_limit=10.0)  # fmt: skip
+    for extra in ({}, {"lagged_rollout": False}, {"lagged_rollout": True}):
+        args = argparse.Namespace(**common, **extra)
+        with pytest.raises(Stop):
+            bench.run_one(bench.racing_setup(args), 0, args, None)
+    assert seen == [False, False, True]
+
+
 def test_first_seed_lets_one_process_per_seed_run_side_by_side(bench) -> None:
     import argparse
 

@@ -168,14 +168,29 @@ def test_the_worker_reads_the_speeds_at_most_every_fifth_of_a_second_of_race_clo
 
 def test_stopping_the_race_on_track_goes_through_trainings_service(day, fran):
     event, _, _, race = day
+    RaceJob.objects.filter(pk=race.pk).update(status=JobStatus.IN_PROGRESS)  # a worker drives it
     raceday.race_day_stop(event=event, user=fran)
     assert RaceJob.objects.get(pk=race.pk).stop_requested
+    assert RaceJob.objects.get(pk=race.pk).status == JobStatus.IN_PROGRESS  # stops at its next step
     assert RaceDaySlot.objects.get(race=race).status == RaceDaySlot.Status.RUNNING
     RaceJob.objects.filter(pk=race.pk).update(status=JobStatus.CANCELED)
     assert race_control.race_stop(race=race, by="test") is False  # already over
     ada = Submission.objects.get(event=event, model_name="ada-car").racer
     with pytest.raises(speed.LeagueError, match="this race is over"):
         speed.race_speed_change(event=event, user=ada, multiplier="1.0")
+
+
+def test_stopping_a_race_still_queued_cancels_it_and_ends_the_turn_at_once(
+    day, fran, django_capture_on_commit_callbacks
+):
+    """No worker has claimed the race yet: it never starts, and the next turn can launch now."""
+    event, _, bo, race = day
+    assert RaceJob.objects.get(pk=race.pk).status == JobStatus.QUEUED
+    with django_capture_on_commit_callbacks(execute=True):
+        raceday.race_day_stop(event=event, user=fran)
+    assert RaceJob.objects.get(pk=race.pk).status == JobStatus.CANCELED
+    assert RaceDaySlot.objects.get(race=race).status == RaceDaySlot.Status.DONE
+    assert raceday.race_day_launch(event=event, user=fran).submission == bo
 
 
 def page_says(client, user, event) -> tuple[bytes, bytes]:
