@@ -122,11 +122,14 @@ def drive(
     steering: float,
     speed: float,
     crash: Callable[[Location], RaceObject | None],
+    asked: tuple[float, float] | None = None,
 ) -> Drive:
     """One 1/15 s step of ``car`` on ``track`` at the commanded ``steering`` (degrees) and
     ``speed`` (m/s), the speed scaled by ``car.speed_multiplier`` (:func:`driven_speed`).
     ``crash`` is asked, with the car already moved and located, what it ran
-    into by the caller's rule (``None``: nothing). The caller moves its bots first."""
+    into by the caller's rule (``None``: nothing). The caller moves its bots first.
+    ``asked``: the ``(steering, speed)`` the model chose, where the car executed another
+    command (the car and latency conditions); the step records it as its action."""
     old = car.point
     # The one place where the commanded action becomes the car's motion (RacingEnv and
     # HeadToHeadRace alike): the multiplier scales the physics' speed only.
@@ -141,6 +144,8 @@ def drive(
     judged = car.tracker.update(
         s=loc.s, dt=car.sim.dt, moved_m=moved, wheels_on_track=wheels, crashed=hit is not None
     )
+    if asked is not None:
+        steering, speed = asked
     return Drive(steering, speed, loc, wheels, hit, judged, car.point, car.pose.yaw,
                  car.tracker.progress, multiplier)  # fmt: skip
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 
@@ -301,8 +300,8 @@ class RacingEnv(gym.Env):
             step = carstep.drive(self.car, self.track, steering, speed, self._crash)
         else:  # the car's errors and latency: params and the trace keep the chosen action
             executed = self._actuator(steering, speed)
-            step = carstep.drive(self.car, self.track, *executed, self._crash)
-            step = dataclasses.replace(step, steering=steering, speed=speed)
+            step = carstep.drive(self.car, self.track, *executed, self._crash,
+                                 asked=(steering, speed))  # fmt: skip
         judged, loc = step.judged, step.loc
         self.sim_time = self.tracker.sim_time
         self.params = self._params(
