@@ -29,7 +29,7 @@ from leaderboard.live import (
     race_standings,
 )
 from leaderboard.models import Event, Notification, RaceDaySlot, Submission
-from training.models import FINISHED_JOB_STATUSES, RaceJob
+from training.models import FINISHED_JOB_STATUSES, JobStatus, RaceJob
 from training.services.race_control import race_stop
 
 Slot = RaceDaySlot
@@ -156,17 +156,20 @@ def race_day_race_finished(*, race_id: int) -> RaceDaySlot | None:
     return slot
 
 
-def race_day_stop(*, event: Event, user) -> None:
+def race_day_stop(*, event: Event, user) -> bool:
     """Stop the race on track, through training's service (the league writes no race job).
     A race a worker is driving stops at its next step and keeps what it drove; the turn is
     done when it has stopped. One still queued (no worker has claimed it yet) is canceled at
     once: it never starts, its share of the organiser's job quota is freed, and the turn ends
-    now (training's ``race_finished``, through :mod:`leaderboard.racefinish`)."""
+    now (training's ``race_finished``, through :mod:`leaderboard.racefinish`). Returns True
+    when the race was canceled so, False when it is stopping."""
     _check(event, user)
     slot = RaceDaySlot.objects.filter(event=event, status=RaceDaySlot.Status.RUNNING).first()
     if slot is None or slot.race is None:
         raise LeagueError("no race is on track")
-    race_stop(race=slot.race, by=f"race day of event {event.pk} ({user})", cancel_queued=True)
+    race = slot.race
+    race_stop(race=race, by=f"race day of event {event.pk} ({user})", cancel_queued=True)
+    return race.status == JobStatus.CANCELED
 
 
 def race_day_spectator_link(*, event: Event, user, enabled: bool) -> str:

@@ -126,7 +126,8 @@ def _race_day_action(request: HttpRequest, event: Event, action: str) -> str:
         slot = raceday.race_day_launch(event=event, user=user)
         return f"On track: {slot.race.title if slot.race else 'the next race'}."
     if action == "stop":
-        raceday.race_day_stop(event=event, user=user)
+        if raceday.race_day_stop(event=event, user=user):
+            return "The race had not started: it is canceled, and the next turn can go on track."
         return "The race on track is stopping."
     if action in ("pause", "resume"):
         raceday.race_day_pause(event=event, user=user, paused=action == "pause")

@@ -130,6 +130,23 @@ def test_the_race_day_page_refuses_a_racer_and_serves_the_facilitator(client, fr
     assert RaceDaySlot.objects.get().status == RaceDaySlot.Status.RUNNING
 
 
+def test_stop_on_the_page_says_whether_the_race_was_canceled_or_is_stopping(client, fran):
+    event = make_event(fran)
+    url = f"/league/events/{event.pk}/race-day/"
+    client.force_login(fran)
+    for name in ("ada", "bo"):
+        client.post(url, {"action": "add", "submission": entry(event, name).pk})
+    client.post(url, {"action": "launch"})
+    page = client.post(url, {"action": "stop"}, follow=True)  # no worker has claimed it
+    assert b"it is canceled, and the next turn can go on track" in page.content
+    assert RaceJob.objects.get().status == JobStatus.CANCELED
+    client.post(url, {"action": "launch"})
+    RaceJob.objects.filter(status=JobStatus.QUEUED).update(status=JobStatus.IN_PROGRESS)
+    page = client.post(url, {"action": "stop"}, follow=True)
+    assert b"The race on track is stopping." in page.content
+    assert RaceJob.objects.get(status=JobStatus.IN_PROGRESS).stop_requested
+
+
 def test_the_broadcast_page_needs_the_event_or_the_spectator_link(client, fran):
     event = make_event(fran, is_private=True)
     url = f"/league/events/{event.pk}/broadcast/"
