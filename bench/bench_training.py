@@ -130,7 +130,7 @@ from racing.tracks import (  # noqa: E402
     deepracer_manifest,
     is_builtin,
 )
-from training.rewards.examples import example_source  # noqa: E402
+from training.rewards.examples import EXAMPLES, example_source  # noqa: E402
 from training.rl.algorithms import resolve_device  # noqa: E402
 from training.rl.hyperparams import (  # noqa: E402
     HyperparameterError,
@@ -441,6 +441,8 @@ def racing_setup(args: argparse.Namespace) -> Setup:
     preset = RACING
     if args.actions:
         preset = dataclasses.replace(RACING, action_space=args.actions)
+    if getattr(args, "reward_example", ""):
+        preset = dataclasses.replace(preset, reward_example=args.reward_example)
     return Setup("fast", preset, args.lap_limit)
 
 
@@ -924,6 +926,9 @@ def main() -> None:
                         help="PPO's target_kl for the trained model (default none, as the "
                              "presets): an update stops its epochs once the approximate KL "
                              "exceeds 1.5 × X")  # fmt: skip
+    parser.add_argument("--reward-example", default="", choices=["", *(e.id for e in EXAMPLES)],
+                        help="an experiment: train the racing preset with this example reward "
+                             "(an id of training.rewards.examples)")  # fmt: skip
     parser.add_argument("--lagged-rollout", action="store_true",
                         help="lockstep: the next rollout is driven beside the update, by "
                              "the policy one update behind (an experiment)")  # fmt: skip

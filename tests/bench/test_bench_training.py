@@ -147,6 +147,22 @@ def test_network_is_each_presets_own_or_a_known_name(bench) -> None:
         bench.checked_network("NOPE")
 
 
+def test_reward_example_replaces_the_racing_presets_reward_and_nothing_else(bench) -> None:
+    import argparse
+
+    args = argparse.Namespace(
+        actions=None, lap_limit=10.0, reward_example="speed_along_track_bends"
+    )
+    preset = bench.racing_setup(args).preset
+    assert preset.reward_example == "speed_along_track_bends"
+    assert (preset.action_space, preset.hyperparameters) == (
+        bench.RACING.action_space,
+        bench.RACING.hyperparameters,
+    )
+    args.reward_example = ""
+    assert bench.racing_setup(args).preset is bench.RACING
+
+
 def test_actions_replace_the_racing_presets_own_and_are_checked_as_a_models(bench) -> None:
     import argparse
 

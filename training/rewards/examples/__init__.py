@@ -1,5 +1,6 @@
 """The example reward functions the console offers: DeepRacer's four, in our words, and the
-racing preset's (:mod:`training.rl.presets`), which pays speed along the track.
+racing preset's (:mod:`training.rl.presets`), which pays speed along the track, and that one
+easing off before bends (docs/benchmarks.md, "Easing off before bends").
 
 The files are data: read them with :func:`example_source`; never import them.
 """
@@ -47,6 +48,12 @@ EXAMPLES: tuple[RewardExample, ...] = (
         "Time trial - fast laps: speed along the track (Racing preset)",
         "TIME_TRIAL",
         "speed_along_track.py",
+    ),
+    RewardExample(
+        "speed_along_track_bends",
+        "Time trial - fast laps, easing off before bends (fewer steps to a clean lap)",
+        "TIME_TRIAL",
+        "speed_along_track_bends.py",
     ),
 )
 DEFAULT_EXAMPLE = "follow_center_line"
