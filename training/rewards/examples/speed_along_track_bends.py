@@ -1,9 +1,9 @@
 import math
 
 LOOK_AHEAD_M = 1.5
-"""How far ahead along the track a bend is looked for."""
+"""How far ahead along the track (waypoint by waypoint) its direction is compared with here."""
 BEND_DEG = 25.0
-"""A turn of the track within LOOK_AHEAD_M bigger than this is a bend to ease off for."""
+"""A change of direction bigger than this by LOOK_AHEAD_M ahead is a bend to ease off for."""
 EASE_OFF_ABOVE = 3.0
 """Speeds above this (m/s) into a bend earn half."""
 
@@ -11,9 +11,10 @@ EASE_OFF_ABOVE = 3.0
 def reward_function(params):
     """Time trial: fast laps, easing off before bends. Pays the square of the speed made good
     along the track, anywhere on it, as the racing preset's reward does, and half of it for a
-    speed above 3 m/s where the track turns by more than 25 degrees within the next 1.5 m. One
-    camera frame does not show how fast the car goes, so a car that learns only from the far
-    end of a bend keeps arriving too fast; this tells it at once. Uses DeepRacer's params only."""
+    speed above 3 m/s where the track's direction 1.5 m ahead differs from its direction here
+    by more than 25 degrees. One camera frame does not show how fast the car goes, so a car
+    that learns only from the far end of a bend keeps arriving too fast; this tells it at once.
+    Uses DeepRacer's params only."""
     if params["is_offtrack"] or not params["all_wheels_on_track"]:
         return 1e-3
 
