@@ -457,6 +457,18 @@ def overridden(preset: Preset, overrides: dict[str, str]) -> Hyperparameters:
         raise SystemExit(f"--set: {error}") from None
 
 
+def reward_source(preset: Preset, args: argparse.Namespace) -> str:
+    """The reward a run trains with: ``--reward-file``'s text where given (for the racing preset;
+    DeepRacer's defaults keep theirs), else the preset's example."""
+    path = getattr(args, "reward_file", None)
+    if path is not None and preset.id == RACING.id:
+        try:
+            return path.read_text()
+        except OSError as error:
+            raise SystemExit(f"--reward-file: {error}") from None
+    return example_source(preset.reward_example)
+
+
 def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
             mode: str = "lockstep", redis_url: str = "",
             make_hooks: Callable[..., UntilGoal] | None = None) -> Run:  # fmt: skip
@@ -470,7 +482,7 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
         network=args.network or preset.network,
         hyperparameters=overridden(preset, args.overrides),
         max_minutes=args.minutes,
-        reward_source=example_source(preset.reward_example),
+        reward_source=reward_source(preset, args),
         num_envs=8,
         rollouts=rollouts(
             mode, redis_url, beside=not args.evaluate_after, sample=not args.trainer_samples
@@ -929,6 +941,9 @@ def main() -> None:
     parser.add_argument("--reward-example", default="", choices=["", *(e.id for e in EXAMPLES)],
                         help="an experiment: train the racing preset with this example reward "
                              "(an id of training.rewards.examples)")  # fmt: skip
+    parser.add_argument("--reward-file", type=Path, default=None,
+                        help="an experiment: train the racing preset with the reward function "
+                             "in this file (as the wizard's editor would)")  # fmt: skip
     parser.add_argument("--lagged-rollout", action="store_true",
                         help="lockstep: the next rollout is driven beside the update, by "
                              "the policy one update behind (an experiment)")  # fmt: skip

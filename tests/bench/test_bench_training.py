@@ -163,6 +163,28 @@ def test_reward_example_replaces_the_racing_presets_reward_and_nothing_else(benc
     assert bench.racing_setup(args).preset is bench.RACING
 
 
+def test_reward_file_trains_the_racing_preset_with_its_text_and_leaves_the_defaults_theirs(
+    bench, tmp_path
+) -> None:
+    import argparse
+
+    from training.rewards.examples import example_source
+
+    path = tmp_path / "mine.py"
+    path.write_text("def reward_function(params):\n    return 1.0\n")
+    args = argparse.Namespace(reward_file=path)
+    assert bench.reward_source(bench.RACING, args) == path.read_text()
+    assert bench.reward_source(bench.DEEPRACER_DEFAULTS, args) == example_source(
+        "follow_center_line"
+    )
+    assert bench.reward_source(bench.RACING, argparse.Namespace()) == example_source(
+        "speed_along_track"
+    )
+    args.reward_file = tmp_path / "missing.py"
+    with pytest.raises(SystemExit, match="--reward-file: .*missing.py"):
+        bench.reward_source(bench.RACING, args)
+
+
 def test_actions_replace_the_racing_presets_own_and_are_checked_as_a_models(bench) -> None:
     import argparse
 
