@@ -307,6 +307,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="diagnosis: train every model on past the goal to this many environment steps "
         "and check its last checkpoint (steps and laps to the goal are still reported)",
     )
+    parser.add_argument(
+        "--reward-file",
+        type=Path,
+        default=None,
+        help="an experiment: train with the reward function in this file, not the preset's",
+    )
     parser.add_argument("--device", default=None, help="the trainer's device (default cpu)")
     args = parser.parse_args(argv)
     # What bench_training's run_one reads, at its defaults.

@@ -55,6 +55,14 @@ def test_the_arguments_default_to_the_goal(bench):
     args = bench.parse_args([])
     assert (args.seeds, args.minutes, args.lap_limit, args.track) == (3, 8.0, 10.0, "reinvent_base")
     assert args.worlds == ["clean", "randomised"] and args.device == "cpu"
+    assert args.reward_file is None
+
+
+def test_reward_file_reaches_the_runs_reward(bench, tmp_path):
+    path = tmp_path / "mine.py"
+    path.write_text("def reward_function(params):\n    return 1.0\n")
+    args = bench.parse_args(["--reward-file", str(path)])
+    assert bench.bt.reward_source(bench.RACING, args) == path.read_text()
 
 
 def test_diagnosis_options_pick_the_families_their_ranges_and_a_step_cap(bench, tmp_path):
