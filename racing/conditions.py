@@ -423,29 +423,37 @@ class ConditionsSpec:
 
     def sample(self, rng: np.random.Generator, strength: float = 1.0) -> Conditions:
         """One episode's draw: each enabled parameter uniform over its range (integer ones
-        uniform over the whole numbers in it), from one ``rng.random`` call in a fixed order.
+        uniform over the whole numbers in it), from one ``rng.random`` call in a fixed order
+        (and, where an integer parameter is enabled, a second one after it).
 
-        ``strength`` (0-1; a curriculum's, :meth:`strength_at`) scales each range about its
-        parameter's neutral value first: ``neutral + strength * (end - neutral)`` for both
-        ends; 0 draws the clean world. An integer range scaled so that it holds no whole
-        number draws the whole number nearest its middle. The same ``rng.random`` call is made
-        at every strength, so what the caller draws after it does not depend on it."""
+        ``strength`` (0-1; a curriculum's, :meth:`strength_at`) eases the draw towards the
+        clean world. A real-valued parameter's range is scaled about its neutral value:
+        ``neutral + strength * (end - neutral)`` for both ends. An integer parameter (latency)
+        cannot take a fraction of a frame, and its range scaled down would hold only its
+        neutral value until the very end of a curriculum; so it takes its whole-range draw in a
+        share ``strength`` of the episodes and its neutral value in the rest (the second call
+        decides which): its mean is scaled as a real one's is. 0 draws the clean world. The
+        same calls are made at every strength, so what the caller draws after them does not
+        depend on it."""
         strength = _number(strength, "strength")
         if not 0.0 <= strength <= 1.0:
             raise ConditionsError(f"strength must be 0-1, not {strength:g}")
         values = {f: dict(v) for f, v in Conditions.clean().values.items()}
         drawn = [(f, n, lo, hi) for f, p in self.ranges.items() for n, (lo, hi) in p.items()]
-        for (family, name, lo, hi), u in zip(drawn, rng.random(len(drawn)), strict=True):
+        uniforms = rng.random(len(drawn))
+        integers = sum(_PARAMETERS[f][n].integer for f, n, _, _ in drawn)
+        shares = iter(rng.random(integers) if integers else ())
+        for (family, name, lo, hi), u in zip(drawn, uniforms, strict=True):
             info = _PARAMETERS[family][name]
-            if strength != 1.0:
-                lo = info.neutral + strength * (lo - info.neutral)
-                hi = info.neutral + strength * (hi - info.neutral)
             if info.integer:
                 first, last = math.ceil(lo), math.floor(hi)
-                if first > last:  # e.g. latency [1, 1] at strength 0.4: [0.4, 0.4]
-                    first = last = math.floor((lo + hi) / 2 + 0.5)
                 value = float(min(last, first + math.floor(u * (last - first + 1))))
+                if next(shares) >= strength:  # strength 1: always the whole-range draw
+                    value = info.neutral
             else:
+                if strength != 1.0:
+                    lo = info.neutral + strength * (lo - info.neutral)
+                    hi = info.neutral + strength * (hi - info.neutral)
                 value = lo + float(u) * (hi - lo)
             values[family][name] = value
         return Conditions(_frozen(values))

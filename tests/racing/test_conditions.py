@@ -161,8 +161,8 @@ def test_a_curriculum_scales_each_range_about_neutral_and_draws_the_same_numbers
         for family, names in spec.ranges.items():
             for name, (low, high) in names.items():
                 info, value = infos[family][name], half.values[family][name]
-                if info.integer:  # latency 0-1 at half strength: 0-0.5, no late frame yet
-                    assert value == 0.0
+                if info.integer:  # latency: the whole-range draw or none (below)
+                    assert value in (info.neutral, full.values[family][name])
                     continue
                 assert math.isclose(value - info.neutral,
                                     0.5 * (full.values[family][name] - info.neutral),
@@ -174,11 +174,22 @@ def test_a_curriculum_scales_each_range_about_neutral_and_draws_the_same_numbers
         a, b = np.random.default_rng(seed), np.random.default_rng(seed)
         spec.sample(a, 0.3), spec.sample(b)
         assert a.random() == b.random()
-    # An integer range scaled to hold no whole number draws the one nearest its middle.
+    # An integer parameter (latency) cannot be scaled to a fraction of a frame: it comes late
+    # as at full strength in a share of the episodes that grows with the strength, so that a
+    # curriculum eases it in too (its scaled range would hold only 0 frames until the end).
     late = ConditionsSpec.from_dict({"families": {"latency": {"frames": [2, 2]}}})
-    frames = [late.sample(np.random.default_rng(0), s).values["latency"]["frames"]
-              for s in (0.2, 0.3, 0.6, 0.8, 1.0)]  # fmt: skip
-    assert frames == [0.0, 1.0, 1.0, 2.0, 2.0]
+    for strength, share in ((0.0, 0.0), (0.25, 0.25), (0.5, 0.5), (0.9, 0.9), (1.0, 1.0)):
+        frames = [late.sample(np.random.default_rng(seed), strength).values["latency"]["frames"]
+                  for seed in range(400)]  # fmt: skip
+        assert set(frames) <= {0.0, 2.0}
+        assert abs(frames.count(2.0) / len(frames) - share) < 0.08, strength
+    default = ConditionsSpec.default(["latency"])  # 0-1 frame: late in about half the episodes
+    halfway = [default.sample(np.random.default_rng(seed), 0.5).values["latency"]["frames"]
+               for seed in range(400)]  # fmt: skip
+    assert 0.15 < halfway.count(1.0) / len(halfway) < 0.35  # 1 frame in 1/2 × 1/2 of them
+    assert [late.sample(np.random.default_rng(7), 0.5) for _ in range(2)] == [
+        late.sample(np.random.default_rng(7), 0.5)
+    ] * 2  # deterministic for a seed
     with pytest.raises(ConditionsError, match="strength must be 0-1"):
         spec.sample(np.random.default_rng(0), 1.5)
 
