@@ -938,10 +938,11 @@ def main() -> None:
                         help="PPO's target_kl for the trained model (default none, as the "
                              "presets): an update stops its epochs once the approximate KL "
                              "exceeds 1.5 × X")  # fmt: skip
-    parser.add_argument("--reward-example", default="", choices=["", *(e.id for e in EXAMPLES)],
+    reward = parser.add_mutually_exclusive_group()
+    reward.add_argument("--reward-example", default="", choices=["", *(e.id for e in EXAMPLES)],
                         help="an experiment: train the racing preset with this example reward "
                              "(an id of training.rewards.examples)")  # fmt: skip
-    parser.add_argument("--reward-file", type=Path, default=None,
+    reward.add_argument("--reward-file", type=Path, default=None,
                         help="an experiment: train the racing preset with the reward function "
                              "in this file (as the wizard's editor would)")  # fmt: skip
     parser.add_argument("--lagged-rollout", action="store_true",

@@ -442,7 +442,7 @@ class ConditionsSpec:
         drawn = [(f, n, lo, hi) for f, p in self.ranges.items() for n, (lo, hi) in p.items()]
         uniforms = rng.random(len(drawn))
         integers = sum(_PARAMETERS[f][n].integer for f, n, _, _ in drawn)
-        shares = iter(rng.random(integers) if integers else ())
+        shares = iter(rng.random(integers))  # none drawn where no integer parameter is on
         for (family, name, lo, hi), u in zip(drawn, uniforms, strict=True):
             info = _PARAMETERS[family][name]
             if info.integer:
