@@ -21,7 +21,13 @@ action on the short straight between two bends and arrived at the second one too
 34 of 34 drove 3 clean laps); the camera's single frame does not show the car's speed.
 
     .venv/bin/python bench/bench_stalls.py [--seeds 12] [--first-seed 0] [--samples 10]
-        [--minutes 6] [--track reinvent_base] [--set KEY=VALUE ...] [--actions JSON]
+        [--minutes 6] [--track reinvent_base] [--lap-limit 10.0] [--before-clean N]
+        [--set KEY=VALUE ...] [--actions JSON]
+
+``--track`` another track: its lap limit scales with its length as in ``bench_training.py
+--suite`` (re:Invent 2018's ``--lap-limit``, 10.0 s, for 17.71 m). ``--before-clean N`` also
+replays the last N failed evaluations before the first clean one: where a seed that has not
+yet driven a clean lap keeps leaving the track (the championship's chicane, for one).
 
 ``--actions`` trains the racing preset with another action space, as in ``bench_training.py``
 (the preset before "Why seeds stall": ``--actions '[{"steering_angle": 0, "speed": 4}, …]'``).
@@ -114,12 +120,19 @@ class KeepCheckpoints(bt.UntilGoal):
         self.kept.append((result.iteration, result.total_steps, ev.all_laps_complete, checkpoint))
 
 
-def stalled(kept: list[tuple[int, int, bool, bytes]]) -> list[tuple[int, int, bytes]]:
-    """The failed evaluations after the first clean one: (iteration, steps, checkpoint)."""
+def stalled(kept: list[tuple[int, int, bool, bytes]],
+            before: int = 0) -> list[tuple[int, int, bytes]]:  # fmt: skip
+    """The failed evaluations after the first clean one: (iteration, steps, checkpoint); with
+    ``before``, also the last ``before`` failed ones ahead of it (where a seed that has not yet
+    driven clean keeps leaving the track; a seed never clean: its last ``before`` failures)."""
     first = next((i for i, (_, _, clean, _) in enumerate(kept) if clean), None)
+    ahead = kept if first is None else kept[:first]
+    out = (
+        [(it, steps, cp) for it, steps, clean, cp in ahead if not clean][-before:] if before else []
+    )
     if first is None:
-        return []
-    return [(it, steps, cp) for it, steps, clean, cp in kept[first + 1 :] if not clean]
+        return out
+    return out + [(it, steps, cp) for it, steps, clean, cp in kept[first + 1 :] if not clean]
 
 
 def drive(
@@ -176,6 +189,13 @@ def replay(seed: int, stalls: list[tuple[int, int, bytes]], spec, eval_spec, pre
     return out
 
 
+def track_lap_limit(track: str, tracks_dir: Path, reference_limit_s: float) -> float:
+    """``track``'s lap limit as ``bench_training.py --suite`` sets it: re:Invent 2018's
+    ``reference_limit_s`` scaled by the track's length."""
+    reference = bt.track_length(bt.REFERENCE_TRACK)
+    return bt.lap_limit_for(bt.track_length(track, tracks_dir), reference, reference_limit_s)
+
+
 def where(d: Drive) -> str:
     return "3 clean laps" if d.clean else f"lap {d.lap} at {d.progress:.0f}%"
 
@@ -218,15 +238,24 @@ def main() -> None:
     parser.add_argument("--tracks-dir", type=Path, default=bt.SHARED)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--actions", default="", help="the racing preset's actions (JSON)")
+    parser.add_argument("--lap-limit", type=float, default=10.0,
+                        help="re:Invent 2018's lap limit (s); another track's scales with its "
+                             "length, as in bench_training.py --suite")  # fmt: skip
+    parser.add_argument("--before-clean", type=int, default=0, metavar="N",
+                        help="also replay the last N failed evaluations before the first clean "
+                             "one (where a seed learns a bend, not where it stalls)")  # fmt: skip
     args = parser.parse_args()
     args.overrides = bt.parse_overrides(args.set)
     args.actions = bt.checked_actions(args.actions)
-    args.network, args.device, args.target_kl, args.lap_limit = "", "cpu", None, 10.0
+    args.network, args.device, args.target_kl = "", "cpu", None
+    args.lap_limit = track_lap_limit(args.track, args.tracks_dir, args.lap_limit)
     args.evaluate_after = args.trainer_samples = False
     setup = bt.racing_setup(args)
     preset = setup.preset
     print(f"machine: {bt.machine()}", flush=True)
     print(f"racing preset's actions: {bt.described(preset.actions())}", flush=True)
+    print(f"{args.track}: lap limit {args.lap_limit:.1f} s (as bench_training.py --suite)",
+          flush=True)  # fmt: skip
     failures: list[Failure] = []
     runs: list[bt.Run] = []
     made: list[KeepCheckpoints] = []
@@ -242,9 +271,9 @@ def main() -> None:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             print(f"racing preset seed {seed} on {args.track}", flush=True)
             runs.append(bt.run_one(setup, seed, args, Path(tmp), make_hooks=hooks))
-            stalls = stalled(made[-1].kept)
+            stalls = stalled(made[-1].kept, args.before_clean)
             print(f"  seed {seed}: {runs[-1].steps} steps to the goal, {len(stalls)} failed "
-                  "evaluations after the first clean one: replaying", flush=True)  # fmt: skip
+                  "evaluations to replay", flush=True)  # fmt: skip
             set_torch_threads(1)
             failures += replay(seed, stalls, spec, eval_spec, preset, args.samples)
     print()

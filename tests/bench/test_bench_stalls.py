@@ -37,6 +37,21 @@ def test_a_stall_is_a_failed_evaluation_after_the_first_clean_one(bench) -> None
     assert bench.stalled([(1, 800, False, b"a")]) == []  # never clean: still learning
 
 
+def test_before_clean_adds_the_last_failures_ahead_of_the_first_clean_one(bench) -> None:
+    kept = [(1, 800, False, b"a"), (2, 1600, False, b"b"), (3, 2400, True, b"c"),
+            (4, 3200, False, b"d")]  # fmt: skip
+    assert bench.stalled(kept, before=1) == [(2, 1600, b"b"), (4, 3200, b"d")]
+    assert bench.stalled(kept, before=5) == [(1, 800, b"a"), (2, 1600, b"b"), (4, 3200, b"d")]
+    never = [(1, 800, False, b"a"), (2, 1600, False, b"b")]
+    assert bench.stalled(never, before=1) == [(2, 1600, b"b")]
+
+
+def test_another_track_gets_the_suites_lap_limit(bench) -> None:
+    shared = bench.bt.SHARED
+    assert bench.track_lap_limit("reinvent_base", shared, 10.0) == 10.0
+    assert bench.track_lap_limit("2022_reinvent_champ", shared, 10.0) == 18.8  # 33.28 m
+
+
 def test_the_last_line_counts_the_replays_and_compares_capped_with_sampled(bench) -> None:
     off = bench.Drive(clean=False, lap=1, progress=51.0, laps=[], top_speed=3.3, fastest_steps=3)
     clean = bench.Drive(clean=True, lap=4, progress=100.0, laps=[6.0, 6.1, 6.0])
