@@ -126,10 +126,8 @@ def stalled(kept: list[tuple[int, int, bool, bytes]],
     ``before``, also the last ``before`` failed ones ahead of it (where a seed that has not yet
     driven clean keeps leaving the track; a seed never clean: its last ``before`` failures)."""
     first = next((i for i, (_, _, clean, _) in enumerate(kept) if clean), None)
-    ahead = kept if first is None else kept[:first]
-    out = (
-        [(it, steps, cp) for it, steps, clean, cp in ahead if not clean][-before:] if before else []
-    )
+    ahead = [(it, steps, cp) for it, steps, clean, cp in kept[:first] if not clean]
+    out = ahead[-before:] if before > 0 else []
     if first is None:
         return out
     return out + [(it, steps, cp) for it, steps, clean, cp in kept[first + 1 :] if not clean]
@@ -245,6 +243,8 @@ def main() -> None:
                         help="also replay the last N failed evaluations before the first clean "
                              "one (where a seed learns a bend, not where it stalls)")  # fmt: skip
     args = parser.parse_args()
+    if args.before_clean < 0:
+        parser.error("--before-clean: give a number of evaluations, 0 or more")
     args.overrides = bt.parse_overrides(args.set)
     args.actions = bt.checked_actions(args.actions)
     args.network, args.device, args.target_kl = "", "cpu", None
