@@ -93,6 +93,13 @@ stall"); DeepRacer's defaults keep theirs.
 environment steps, as ``--minutes`` does after its time: a lower bound, printed ``>…``, but the
 same on any machine and under any load.
 
+``--ready N`` measures the console's own stop condition instead of the bench's goal: each
+run evaluates as a console job does (5 one-lap episodes from starts spread round the track,
+not one 3-lap episode from the start line) and the training loop itself stops it once N
+evaluations in a row complete every lap (the model setting "Stop when ready",
+``TrainingConfig.stop_when_ready``); no lap limit. The steps and seconds printed are then those
+to "ready", what a racer who sets it waits.
+
 ``--target-kl X`` (an experiment; the presets and the console set none) trains with PPO's
 ``target_kl`` = X: an update stops its epochs at the first minibatch whose approximate KL
 exceeds 1.5 × X. Each iteration's line then adds the epochs its update ran (an epoch stopped
@@ -469,6 +476,17 @@ def reward_source(preset: Preset, args: argparse.Namespace) -> str:
     return example_source(preset.reward_example)
 
 
+def evaluation_settings(ready: int) -> dict:
+    """TrainingConfig's evaluation: the bench's goal (one 3-lap episode from the start line),
+    or with ``ready`` (``--ready``) the console's (its defaults: 5 one-lap episodes from spread
+    starts) and its "stop when ready" condition."""
+    if ready:
+        console = {f.name: f.default for f in dataclasses.fields(TrainingConfig)}
+        keys = ("eval_episodes", "eval_laps", "eval_from_start_line")
+        return {**{key: console[key] for key in keys}, "stop_when_ready": ready}
+    return {"eval_episodes": 1, "eval_laps": EVAL_LAPS, "eval_from_start_line": True}
+
+
 def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
             mode: str = "lockstep", redis_url: str = "",
             make_hooks: Callable[..., UntilGoal] | None = None) -> Run:  # fmt: skip
@@ -476,6 +494,7 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
     what builds a subclass of it, as bench_stalls.py's) makes what follows its iterations."""
     run = Run(setup.name, seed, mode)
     preset = setup.preset
+    ready = getattr(args, "ready", 0)
     config = TrainingConfig(
         spec=track_spec(args.track, args.tracks_dir, scratch, preset),
         algorithm=preset.algorithm,
@@ -488,15 +507,15 @@ def run_one(setup: Setup, seed: int, args: argparse.Namespace, scratch: Path, *,
             mode, redis_url, beside=not args.evaluate_after, sample=not args.trainer_samples
         ),
         seed=seed,
-        eval_episodes=1,
-        eval_laps=EVAL_LAPS,
-        eval_from_start_line=True,
+        **evaluation_settings(ready),
         device=args.device,
         lagged_rollout=getattr(args, "lagged_rollout", False),
     )
     hooks = (make_hooks or UntilGoal)(
-        run, setup.lap_limit_s, show_epochs=args.target_kl is not None
+        run, None if ready else setup.lap_limit_s, show_epochs=args.target_kl is not None
     )
+    if ready:  # the console's condition, which the loop stops at by itself
+        hooks.streak = Streak(needed=ready, laps=1)
     start = time.monotonic()
     loop = TrainingLoop(config, hooks)  # as train() does, with the model at hand
     if args.target_kl is not None:
@@ -785,9 +804,12 @@ def run_suite(args: argparse.Namespace, scratch: Path, mode: str, redis_url: str
     runs: list[Run] = []
     fast = racing_setup(args)
 
+    ready = getattr(args, "ready", 0)
+
     def one(setup: Setup, track: str, seed: int, minutes: float) -> Run:
         print(f"{mode}: {setup.name} ({setup.preset.label}) seed {seed} on {track}"
-              + (f", lap limit {setup.lap_limit_s:.1f} s" if setup.lap_limit_s else ""),
+              + (f", lap limit {setup.lap_limit_s:.1f} s" if setup.lap_limit_s and not ready
+                 else f", until ready ({ready} evaluations in a row)" if ready else ""),
               flush=True)  # fmt: skip
         on_track = argparse.Namespace(**{**vars(args), "track": track, "minutes": minutes})
         run = run_one(setup, seed, on_track, scratch, mode=mode, redis_url=redis_url)
@@ -914,6 +936,9 @@ def main() -> None:
                         "goal after this many environment steps (a lower bound, as "
                         "--minutes)")  # fmt: skip
     parser.add_argument("--lap-limit", type=float, default=10.0, help="fast: slowest lap (s)")
+    parser.add_argument("--ready", type=int, default=0, metavar="N",
+                        help="the console's evaluation and its stop condition: stop once N "
+                        "evaluations in a row complete every lap (no lap limit)")  # fmt: skip
     parser.add_argument("--setups", nargs="+", choices=("defaults", "fast"),
                         default=["defaults", "fast"])  # fmt: skip
     parser.add_argument(

@@ -23,6 +23,27 @@ class Direction(models.TextChoices):
     CLOCKWISE = "cw", "Clockwise"
 
 
+def stop_condition_words(max_minutes: int, stop_when_ready: int) -> str:
+    """A training's stop condition in words: ``60 min, or when ready: 3 evaluations in a row
+    complete every lap``."""
+    words = f"{max_minutes} min"
+    if stop_when_ready:
+        evaluations = (
+            "an evaluation" if stop_when_ready == 1 else f"{stop_when_ready} evaluations in a row"
+        )
+        verb = "completes" if stop_when_ready == 1 else "complete"
+        words += f", or when ready: {evaluations} {verb} every lap"
+    return words
+
+
+STOPPED_BY_WORDS = {
+    "user": "stopped by you",
+    "time_limit": "time limit reached",
+    "ready": "ready: its evaluations completed every lap",
+}
+"""How a training job ended (``TrainingJob.stopped_by``), in words."""
+
+
 class RacingModel(models.Model):
     """A user's model: its configuration (immutable once created, as on DeepRacer) and state."""
 
@@ -63,6 +84,11 @@ class RacingModel(models.Model):
     max_minutes = models.PositiveIntegerField(
         default=10, validators=[MinValueValidator(1), MaxValueValidator(1440)]
     )
+    stop_when_ready = models.PositiveSmallIntegerField(
+        default=0, validators=[MaxValueValidator(20)]
+    )
+    """The stop condition beside the time: training ends once this many evaluations in a row
+    have completed every lap (0: off)."""
     seed = models.PositiveIntegerField(default=0)
     parent = models.ForeignKey(
         "self", null=True, blank=True, on_delete=models.SET_NULL, related_name="clones"
@@ -103,6 +129,10 @@ class RacingModel(models.Model):
     def store_folder(self) -> str:
         """The folder name in the store: ``store_prefix``, or the id for older models."""
         return self.store_prefix or str(self.pk)
+
+    @property
+    def stop_condition(self) -> str:
+        return stop_condition_words(self.max_minutes, self.stop_when_ready)
 
     @property
     def training_tracks(self) -> list[tuple[str, str]]:
@@ -176,6 +206,8 @@ class Job(models.Model):
 class TrainingJob(Job):
     model = models.ForeignKey(RacingModel, on_delete=models.CASCADE, related_name="training_jobs")
     max_minutes = models.PositiveIntegerField()
+    stop_when_ready = models.PositiveSmallIntegerField(default=0)
+    """The model's setting when the job was queued (0: the time limit alone)."""
     iterations = models.PositiveIntegerField(default=0)
     total_steps = models.PositiveBigIntegerField(default=0)
     episodes = models.PositiveIntegerField(default=0)
@@ -184,6 +216,15 @@ class TrainingJob(Job):
     stopped_by = models.CharField(max_length=16, blank=True)
     resumed_from = models.CharField(max_length=500, blank=True)
     """What the job's network started from, in words (a checkpoint, a parent, a fresh net)."""
+
+    @property
+    def stop_condition(self) -> str:
+        return stop_condition_words(self.max_minutes, self.stop_when_ready)
+
+    @property
+    def stopped_by_words(self) -> str:
+        """How the job ended, in words ("" while it runs, or when it failed)."""
+        return STOPPED_BY_WORDS.get(self.stopped_by, self.stopped_by)
 
     @property
     def remaining_seconds(self) -> float:

@@ -107,6 +107,7 @@ def model_create(request: HttpRequest) -> HttpResponse:
             hyperparameters=data["hyperparameters"],
             reward_function=data["reward_function"],
             max_minutes=data["max_minutes"],
+            stop_when_ready=data.get("stop_when_ready") or 0,
             conditions=data.get("conditions"),
             reward_check="passed",
         ),
@@ -132,6 +133,7 @@ def model_clone(request: HttpRequest, model_id: int) -> HttpResponse:
         "direction": source.direction,
         "reward_function": source.reward_function,
         "max_minutes": source.max_minutes,
+        "stop_when_ready": source.stop_when_ready,
     }
     form = CloneForm(request.POST or None, initial=initial)
     reward_errors: list[dict] = []
@@ -149,6 +151,7 @@ def model_clone(request: HttpRequest, model_id: int) -> HttpResponse:
                 direction=data["direction"],
                 reward_function=data["reward_function"],
                 max_minutes=data["max_minutes"],
+                stop_when_ready=data.get("stop_when_ready") or 0,
                 reward_check="passed",
             ),
         )

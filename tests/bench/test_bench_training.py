@@ -390,3 +390,19 @@ def test_max_steps_stops_a_run_that_has_not_reached_the_goal_as_a_lower_bound(be
     assert hooks.should_stop() and r.steps is None  # stopped, the goal not reached
     hooks.max_steps, r.total_steps = 40_000, 12_000
     assert not hooks.should_stop()
+
+
+def test_ready_evaluates_as_the_console_and_stops_by_the_loops_own_condition(bench) -> None:
+    """``--ready N``: the console's evaluation (TrainingConfig's defaults, as a job gets them)
+    and its "stop when ready" condition; without it, the bench's one 3-lap episode from the
+    start line."""
+    from training.rl.runner import TrainingConfig
+
+    console = TrainingConfig(spec=None)
+    assert bench.evaluation_settings(3) == {
+        "eval_episodes": console.eval_episodes, "eval_laps": console.eval_laps,
+        "eval_from_start_line": console.eval_from_start_line, "stop_when_ready": 3,
+    }  # fmt: skip
+    assert (console.eval_episodes, console.eval_laps, console.eval_from_start_line) == (5, 1, False)
+    assert bench.evaluation_settings(0) == {"eval_episodes": 1, "eval_laps": bench.EVAL_LAPS,
+                                            "eval_from_start_line": True}  # fmt: skip

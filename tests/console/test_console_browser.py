@@ -96,6 +96,7 @@ def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, we
     page.fill("#id_num_epochs", "3")
     page.select_option("#id_batch_size", "32")
     page.fill("#id_max_minutes", "2")
+    page.fill("#id_stop_when_ready", "20")  # beside the 2 minutes: never reached here
     set_editor(page, BROKEN)
     page.click("#validate-reward")
     error = page.locator("#reward-result .error-list li").first
@@ -115,6 +116,9 @@ def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, we
     expect(page.locator("#reward-result .ok-message")).to_contain_text("Valid")
     page.click("#create-submit")
     expect(page.locator("h1")).to_contain_text("oval-racer")
+    expect(page.locator("#config-stop")).to_have_text(
+        "2 min, or when ready: 20 evaluations in a row complete every lap"
+    )
     shot(page, "02-model-page")
 
     # ---- train, watch frames arrive and the chart grow without a reload

@@ -9,10 +9,11 @@ import re
 
 import pytest
 from django.test import Client
+from django.utils import timezone
 
 from tests.conftest import PASSWORD
 from tests.console.conftest import REWARD, make_model
-from training.models import RacingModel
+from training.models import JobStatus, RacingModel, TrainingJob
 from training.services import rewards
 
 pytestmark = pytest.mark.django_db
@@ -345,3 +346,45 @@ def test_evaluate_in_another_race_with_its_settings(alice, alice_client, store_d
     job = model.evaluations.get()
     assert job.race_type == "HEAD_TO_BOT" and job.race_config["number_of_bots"] == 3
     assert job.race_config["bot_speed"] == 1.5
+
+
+def test_stop_when_ready_is_set_shown_kept_by_a_clone_and_checked(alice, alice_client,
+                                                                   store_dir) -> None:  # fmt: skip
+    rewards.reward_validation_remember(
+        user_id=alice.pk, source=REWARD, track_id="racecraft_oval", direction="native"
+    )
+    response = alice_client.post("/models/new/", create_data(stop_when_ready="21"))
+    assert response.status_code == 400
+    assert "Ensure this value is less than or equal to 20." in response.content.decode()
+    assert not RacingModel.objects.exists()
+
+    assert alice_client.post("/models/new/", create_data(stop_when_ready="")).status_code == 302
+    assert RacingModel.objects.get(name="my-first-model").stop_when_ready == 0  # empty: off
+
+    response = alice_client.post("/models/new/", create_data(name="ready", stop_when_ready="3"))
+    model = RacingModel.objects.get(owner=alice, name="ready")
+    assert response.status_code == 302 and model.stop_when_ready == 3
+    page = alice_client.get(f"/models/{model.pk}/").content.decode()
+    stop = "30 min, or when ready: 3 evaluations in a row complete every lap"
+    assert re.search(r'id="config-stop">' + re.escape(stop) + "<", page)
+    assert "or until 3 evaluations in a row complete every lap" in page
+
+    form = alice_client.get(f"/models/{model.pk}/clone/").content.decode()
+    assert re.search(r'name="stop_when_ready" value="3"', form)
+    data = {"name": "ready-clone", "description": "", "track_id": "racecraft_oval",
+            "direction": "native", "reward_function": REWARD, "max_minutes": "20",
+            "stop_when_ready": "2"}  # fmt: skip
+    assert alice_client.post(f"/models/{model.pk}/clone/", data).status_code == 302
+    assert RacingModel.objects.get(name="ready-clone").stop_when_ready == 2
+
+
+def test_a_job_that_ended_ready_says_so(alice_model, alice_client) -> None:
+    now = timezone.now()
+    TrainingJob.objects.create(model=alice_model, max_minutes=60, stop_when_ready=3,
+                               status=JobStatus.COMPLETED, stopped_by="ready", iterations=12,
+                               best_iteration=12, started_at=now, finished_at=now)  # fmt: skip
+    page = alice_client.get(f"/models/{alice_model.pk}/").content.decode()
+    assert re.search(r'id="job-stop-condition">60 min, or when ready: 3 evaluations in a row '
+                     r"complete every lap<", page)  # fmt: skip
+    assert re.search(r'id="job-stopped-by">Ready: its evaluations completed every lap \(3 in a '
+                     r"row; best checkpoint: iteration 12\)<", page)  # fmt: skip

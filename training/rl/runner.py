@@ -11,7 +11,9 @@ drives); the source has the new policy evaluated (at once in lockstep; by the si
 workers during the next rollout when streamed); when its evaluation is in, a metrics row, the
 sim-trace of the iteration and the checkpoint (best and last) go to the hooks. The stop flag
 and the time limit are checked on every step and between phases, so stopping always leaves the
-last finished iteration's checkpoint.
+last finished iteration's checkpoint. With ``stop_when_ready`` the run also ends once that many
+evaluations in a row have completed every lap ("ready"): the iteration that completes the
+streak is the best checkpoint, and the rollout under way then is not learnt from.
 """
 
 from __future__ import annotations
@@ -53,6 +55,10 @@ class TrainingConfig:
     network: str = LEAN
     hyperparameters: Hyperparameters = field(default_factory=Hyperparameters)
     max_minutes: float = 10.0
+    stop_when_ready: int = 0
+    """Stop once this many evaluations in a row have completed every lap (0: off; the time
+    limit holds either way). The iteration that completes the streak becomes the best one,
+    and the run ends ``"ready"``."""
     reward_source: str | None = None
     reward_function: Callable[[dict], float] | None = None
     num_envs: int = 8
@@ -187,6 +193,8 @@ class TrainingLoop:
         self.total_steps = 0
         self.best_progress = -1.0 if config.best_score is None else float(config.best_score)
         self.best_iteration: int | None = None
+        self.clean_streak = 0
+        """Evaluations in a row, up to the latest, that completed every lap."""
         set_torch_threads(config.torch_threads)
         device = resolve_device(config.device)  # before any process starts: fail fast
         self.source: ExperienceSource = config.rollouts.experience(experience_request(config))
@@ -295,9 +303,13 @@ class TrainingLoop:
         result, checkpoint, rows = self._waiting.popleft()
         result.evaluation, result.eval_s = outcome, wall_s
         result.elapsed_s = time.monotonic() - self.started
-        if outcome.mean_progress > self.best_progress:
-            self.best_progress, self.best_iteration = outcome.mean_progress, iteration
-            result.best = True
+        self.clean_streak = self.clean_streak + 1 if outcome.all_laps_complete else 0
+        ready = 0 < self.config.stop_when_ready <= self.clean_streak
+        if outcome.mean_progress > self.best_progress or ready:
+            self.best_progress = max(self.best_progress, outcome.mean_progress)
+            self.best_iteration, result.best = iteration, True
+        if ready and self._stop is None:
+            self._stop = "ready"  # the rollout under way is not learnt from
         self.emitted += 1
         self.total_steps = result.total_steps
         self.hooks.on_iteration(result, checkpoint, rows)
@@ -312,5 +324,6 @@ class TrainingLoop:
 
 
 def train(config: TrainingConfig, hooks: TrainingHooks | None = None) -> TrainingSummary:
-    """Train until ``config.max_minutes`` pass or ``hooks.should_stop()`` says so."""
+    """Train until ``config.max_minutes`` pass, ``hooks.should_stop()`` says so or (with
+    ``config.stop_when_ready``) the model is ready."""
     return TrainingLoop(config, hooks).run()

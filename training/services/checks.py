@@ -26,6 +26,8 @@ from training.services.racing import (  # noqa: F401 - the race rules live in ra
 )
 
 MIN_MINUTES, MAX_MINUTES = 1, 1440
+MAX_READY_STREAK = 20
+"""The most evaluations in a row a "stop when ready" condition may ask for."""
 MAX_TRAINING_TRACKS = 4
 """Tracks one model may train on at once (multi-track training): each gets at least two of a
 run's 8 cars."""
@@ -55,6 +57,8 @@ class ModelSpec:
     race_config: dict = field(default_factory=dict)
     """The race's settings (:func:`training.services.racing.race_settings`); {} in a time
     trial."""
+    stop_when_ready: int = 0
+    """Evaluations in a row that complete every lap to stop at (0: the time limit alone)."""
 
 
 def check_track(track_id: str, direction: str) -> Track:
@@ -122,6 +126,7 @@ def check_model_spec(
     hyperparameters: dict | None,
     max_minutes: int,
     race_config: dict | None = None,
+    stop_when_ready: int = 0,
 ) -> ModelSpec:
     """The whole configuration of a new model, checked; raises on the first problem.
     ``race_config`` holds the settings of an object-avoidance or head-to-bot race."""
@@ -144,7 +149,19 @@ def check_model_spec(
         raise ServiceError(
             f"the stop condition is {MIN_MINUTES}-{MAX_MINUTES} minutes", field="max_minutes"
         )
-    return ModelSpec(metadata, hp.to_json(), track_id, direction, race_type, max_minutes, race)
+    check_stop_when_ready(stop_when_ready)
+    return ModelSpec(metadata, hp.to_json(), track_id, direction, race_type, max_minutes, race,
+                     stop_when_ready)  # fmt: skip
+
+
+def check_stop_when_ready(value: int) -> None:
+    """``value`` as a "stop when ready" condition: 0 (off) to :data:`MAX_READY_STREAK`."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_READY_STREAK:
+        raise ServiceError(
+            f"stop when ready after 1-{MAX_READY_STREAK} evaluations in a row that complete "
+            "every lap, or 0 for the time limit alone",
+            field="stop_when_ready",
+        )
 
 
 def _metadata_field(field: str) -> str:

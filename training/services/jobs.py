@@ -169,7 +169,8 @@ def training_start(*, model: RacingModel, user, enqueue: bool = True) -> Trainin
             raise ServiceError("this model has been trained; clone it to train it further")
         tracks_check_recorded([track_id for track_id, _ in model.training_tracks])
         _check_job_quota(user)
-        job = TrainingJob.objects.create(model=model, max_minutes=model.max_minutes)
+        job = TrainingJob.objects.create(model=model, max_minutes=model.max_minutes,
+                                         stop_when_ready=model.stop_when_ready)  # fmt: skip
         model.status = RacingModel.Status.QUEUED
         model.error = ""
         model.save(update_fields=["status", "error", "updated_at"])

@@ -47,6 +47,7 @@ def training_params(model: RacingModel) -> str:
         "RACECRAFT_DIRECTION": model.direction,
         "RACECRAFT_SEED": str(model.seed),
         "RACECRAFT_MAX_MINUTES": str(model.max_minutes),
+        "RACECRAFT_STOP_WHEN_READY": str(model.stop_when_ready),
     }
     if model.extra_tracks:  # multi-track training: every track:direction the cars are dealt
         lines["RACECRAFT_TRACKS"] = ",".join(f"{t}:{d}" for t, d in model.training_tracks)

@@ -13,6 +13,7 @@ from training.models import RacingModel
 from training.rewards.examples import DEFAULT_EXAMPLE, example_source
 from training.rl.hyperparams import defaults_for
 from training.services.checks import (
+    MAX_READY_STREAK,
     MAX_TRAINING_TRACKS,
     check_extra_tracks,
     check_model_quota,
@@ -63,6 +64,7 @@ def model_import(*, owner, name: str, upload, description: str = "") -> RacingMo
             ).to_json(),
             reward_function=imported.reward_function or example_source(DEFAULT_EXAMPLE),
             max_minutes=minutes,
+            stop_when_ready=_imported_stop_when_ready(params),
             validate_reward=False,
             extra_tracks=extra_tracks,
             conditions=conditions_from_param(params.get(CONDITIONS_KEY, "")),
@@ -160,6 +162,13 @@ def _imported_environment(params: dict[str, str]) -> tuple[str, str, int | None,
         int(minutes) if minutes.isdigit() and 1 <= int(minutes) <= 1440 else 10,
         note,
     )
+
+
+def _imported_stop_when_ready(params: dict[str, str]) -> int:
+    """An archive's ``RACECRAFT_STOP_WHEN_READY`` (0, the time limit alone, when absent or
+    out of range)."""
+    value = params.get("RACECRAFT_STOP_WHEN_READY", "")
+    return int(value) if value.isdigit() and int(value) <= MAX_READY_STREAK else 0
 
 
 def _droa_direction(clockwise: str) -> str:

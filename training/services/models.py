@@ -114,6 +114,7 @@ def model_create(
     hyperparameters: dict | None = None,
     reward_function: str,
     max_minutes: int = 10,
+    stop_when_ready: int = 0,
     seed: int | None = None,
     validate_reward: bool = True,
     reward_check: str = "sandbox",
@@ -137,6 +138,7 @@ def model_create(
         track_id=track_id, direction=direction, race_type=race_type, race_config=race_config,
         sensors=list(sensors), action_space=action_space, algorithm=algorithm,
         neural_network=neural_network, hyperparameters=hyperparameters, max_minutes=max_minutes,
+        stop_when_ready=stop_when_ready,
     )  # fmt: skip
     extra = check_extra_tracks(track_id, direction, extra_tracks)
     world = conditions_check(conditions)
@@ -182,6 +184,7 @@ def _create_row(
         hyperparameters=spec.hyperparameters,
         reward_function=reward_function,
         max_minutes=spec.max_minutes,
+        stop_when_ready=spec.stop_when_ready,
         seed=seed if seed is not None else random.randrange(2**31),
         conditions=conditions,
         status=RacingModel.Status.READY,
@@ -199,6 +202,7 @@ def model_clone(
     reward_function: str | None = None,
     hyperparameters: dict | None = None,
     max_minutes: int | None = None,
+    stop_when_ready: int | None = None,
     action_space: list | dict | None = None,
     checkpoint: str = "best",
     reward_check: str = "sandbox",
@@ -247,6 +251,7 @@ def model_clone(
                 reward_function if reward_function is not None else model.reward_function
             ),
             max_minutes=max_minutes or model.max_minutes,
+            stop_when_ready=(model.stop_when_ready if stop_when_ready is None else stop_when_ready),
             reward_check=reward_check,
             conditions=dict(model.conditions or {}) if conditions is None else conditions,
         )

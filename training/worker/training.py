@@ -269,6 +269,7 @@ def run_training_job(job_id: int, worker: str = "", task_id: str = "") -> str:
             network=model.neural_network,
             hyperparameters=parse_hyperparameters(model.hyperparameters, model.algorithm),
             max_minutes=max_minutes,
+            stop_when_ready=job.stop_when_ready,
             reward_source=model.reward_function,
             seed=model.seed,
             initial_checkpoint=checkpoint,

@@ -23,6 +23,7 @@ from training import services
 from training.management import cli
 from training.management.progress import ProgressBar, render_bar
 from training.models import EvaluationJob, JobStatus, RacingModel, TrainingJob
+from training.services.model_files import TRAINING_PARAMS
 from training.store import get_store, keys_for
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -311,3 +312,34 @@ def test_create_train_evaluate_export_import(store_dir, alice, files, tmp_path, 
     assert f"Imported model {copy.pk}" in out
     assert copy.imported and copy.has_checkpoint and copy.action_space == model.action_space
     assert RacingModel.objects.filter(owner=alice).count() == 2
+
+
+@pytest.mark.slow
+@pytest.mark.django_db(transaction=True)
+def test_a_model_set_to_stop_when_ready_stops_at_its_first_clean_evaluation(
+    store_dir, alice, files
+):
+    """The real loop, workers and sandbox: on the oval (8 episodes an update, seed 0, the
+    console's five evaluation laps from spread starts) the first evaluation that completes
+    every lap comes within a few thousand steps; the job ends there, "ready", with that
+    iteration as the best checkpoint, long before its 30 minutes."""
+    eight = {**TINY_HYPERPARAMETERS, "num_episodes_between_training": 8}
+    files["hyperparameters"].write_text(json.dumps(eight))
+    out = run("racecraft_create_model", *create_args(
+        files, "--minutes", "30", "--seed", "0", "--stop-when-ready", "1"))  # fmt: skip
+    model = RacingModel.objects.get(name="oval-runner")
+    assert model.stop_when_ready == 1
+    assert "stop: 30 min, or when ready: an evaluation completes every lap" in out
+    params = get_store().get_bytes(f"{keys_for(model.pk).prefix}{TRAINING_PARAMS}").decode()
+    assert 'RACECRAFT_STOP_WHEN_READY: "1"' in params
+
+    out = run("racecraft_train", str(model.pk))
+    job = TrainingJob.objects.get(model=model)
+    assert job.status == JobStatus.COMPLETED and job.stopped_by == "ready", out
+    assert "Completed (ready: its evaluations completed every lap)" in out
+    points = list(job.iterations_set.order_by("iteration"))
+    last = points[-1]
+    assert (last.eval_progress, last.eval_laps_completed, last.is_best) == (100.0, 5, True)
+    assert all(p.eval_laps_completed < 5 for p in points[:-1])  # the first clean one
+    assert job.best_iteration == last.iteration == job.iterations
+    assert job.elapsed_seconds < 30 * 60

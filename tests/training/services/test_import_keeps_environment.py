@@ -26,7 +26,7 @@ def trained(ppo_discrete, tmp_path, settings) -> RacingModel:
     model = services.model_create(
         owner=owner, name="oval-ccw", track_id="racecraft_oval", direction="ccw",
         action_space=ppo_discrete.metadata.actions.to_metadata(), reward_function=REWARD,
-        seed=4242, max_minutes=7, validate_reward=False,
+        seed=4242, max_minutes=7, stop_when_ready=3, validate_reward=False,
     )  # fmt: skip
     get_store().put_bytes(keys_for(model.pk).best, checkpoint_bytes(ppo_discrete.model))
     RacingModel.objects.filter(pk=model.pk).update(has_checkpoint=True)
@@ -37,10 +37,18 @@ def trained(ppo_discrete, tmp_path, settings) -> RacingModel:
 def test_an_exported_model_imports_on_its_track_with_its_seed(trained) -> None:
     archive = virtual_model_archive(trained)
     copy = services.model_import(owner=trained.owner, name="back-again", upload=archive)
-    assert (copy.track_id, copy.direction, copy.seed, copy.max_minutes) == (
-        "racecraft_oval", "ccw", 4242, 7,
-    )  # fmt: skip
+    assert (copy.track_id, copy.direction, copy.seed, copy.max_minutes,
+            copy.stop_when_ready) == ("racecraft_oval", "ccw", 4242, 7, 3)  # fmt: skip
     assert copy.import_note == ""
+
+
+@pytest.mark.parametrize("value", ["21", "-1", "three", ""])
+def test_a_stop_when_ready_out_of_range_imports_as_off(trained, value) -> None:
+    archive = _with_params(
+        virtual_model_archive(trained), f'RACECRAFT_STOP_WHEN_READY: "{value}"\n'
+    )
+    copy = services.model_import(owner=trained.owner, name=f"ready-{len(value)}", upload=archive)
+    assert copy.stop_when_ready == 0
 
 
 def _with_params(archive: bytes, text: str) -> bytes:

@@ -63,6 +63,10 @@ def test_create_stores_deepracer_files(alice):
         ({"hyperparameters": {"batch_size": 100}}, "hyperparameters", "batch_size"),
         ({"hyperparameters": {"lr": 1}}, "hyperparameters", "lr"),
         ({"max_minutes": 0}, "max_minutes", "minutes"),
+        ({"stop_when_ready": 21}, "stop_when_ready", "1-20 evaluations in a row"),
+        ({"stop_when_ready": -1}, "stop_when_ready", "0 for the time limit alone"),
+        ({"stop_when_ready": True}, "stop_when_ready", "every lap"),
+        ({"stop_when_ready": "3"}, "stop_when_ready", "every lap"),
         ({"description": "d" * 256}, "description", "255"),
     ],
 )

@@ -194,6 +194,14 @@ class Command(BaseCommand):
             default=10,
             help="stop condition: minutes of training (1-1440, default 10)",
         )
+        parser.add_argument(
+            "--stop-when-ready",
+            type=int,
+            default=0,
+            metavar="N",
+            help="stop condition beside the minutes: stop once N evaluations in a row complete "
+            "every lap, keeping the checkpoint that completed them (1-20; default 0, off)",
+        )
         parser.add_argument("--description", default="", help="at most 255 characters")
         parser.add_argument(
             "--seed", type=int, default=None, help="random seed (default: a random one)"
@@ -266,6 +274,7 @@ class Command(BaseCommand):
                 hyperparameters=hyperparameters,
                 reward_function=reward,
                 max_minutes=options["minutes"],
+                stop_when_ready=options["stop_when_ready"],
                 seed=options["seed"],
                 conditions=conditions,
             )
@@ -279,7 +288,7 @@ class Command(BaseCommand):
             f"{', '.join(model.sensors)}, {model.neural_network}) on "
             f"{' + '.join(f'{t} ({d})' for t, d in model.training_tracks)}, "
             f"{race_summary(model.race_type, model.race_config)}, "
-            f"{model.max_minutes} min of training{world}"
+            f"stop: {model.stop_condition}{world}"
         )
         advice = services.sensor_advice(model.race_type, model.sensors)
         if advice:

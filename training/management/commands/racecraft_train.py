@@ -24,8 +24,8 @@ from training.worker.training import run_training_job
 
 class Command(BaseCommand):
     help = (
-        "Train a model until its stop condition (minutes), showing the elapsed time and the "
-        "latest iteration. By default the training runs in this process; Ctrl-C asks it to "
+        "Train a model until its stop condition (minutes, or ready), showing the elapsed time "
+        "and the latest iteration. By default the training runs in this process; Ctrl-C asks it to "
         "stop and waits for a clean end that keeps the last checkpoint. With --queue a Celery "
         "worker runs it and this command follows it (Ctrl-C stops following, not the job)."
     )
@@ -41,7 +41,7 @@ class Command(BaseCommand):
         where = "queued for a worker" if queue else "running here"
         self.stdout.write(
             f"Training job {job.pk} of model {model.pk} ({model.name}): {where}, "
-            f"up to {job.max_minutes} min on "
+            f"stop: {job.stop_condition}; on "
             f"{' + '.join(t for t, _ in model.training_tracks)}"
         )
         done = run_or_follow(job=job, queue=queue, user=user, run=run_training_job,
@@ -52,9 +52,7 @@ class Command(BaseCommand):
         require_completed(done, "training job")
 
     def _report(self, job: TrainingJob) -> None:
-        why = {"user": "stopped by you", "time_limit": "stop condition reached"}.get(
-            job.stopped_by, job.stopped_by or ""
-        )
+        why = job.stopped_by_words
         self.stdout.write(
             f"Training job {job.pk}: {job.get_status_display()}"
             + (f" ({why})" if why else "")
