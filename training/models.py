@@ -222,6 +222,12 @@ class TrainingJob(Job):
         return stop_condition_words(self.max_minutes, self.stop_when_ready)
 
     @property
+    def stop_condition_short(self) -> str:
+        """The stop condition for a small space: ``60 min or ready (3 in a row)``."""
+        ready = f" or ready ({self.stop_when_ready} in a row)" if self.stop_when_ready else ""
+        return f"{self.max_minutes} min{ready}"
+
+    @property
     def stopped_by_words(self) -> str:
         """How the job ended, in words ("" while it runs, or when it failed)."""
         return STOPPED_BY_WORDS.get(self.stopped_by, self.stopped_by)

@@ -72,6 +72,17 @@ def chart_points(job: TrainingJob) -> list[dict]:
     return [m.as_point() for m in IterationMetric.objects.filter(job=job).order_by("iteration")]
 
 
+def clean_streak(points: list[dict]) -> int:
+    """How many of the latest iterations in a row had an evaluation at 100 % (every lap
+    complete): the count that "stop when ready" (``TrainingJob.stop_when_ready``) stops at."""
+    streak = 0
+    for point in reversed(points):
+        if point["eval_progress"] < 100.0:
+            break
+        streak += 1
+    return streak
+
+
 @dataclass(frozen=True)
 class ModelActions:
     """What the owner may do with a model now (the services enforce the same rules)."""

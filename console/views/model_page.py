@@ -45,6 +45,7 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
                      **race_initial(model.race_type, model.race_config)}
         )  # fmt: skip
     actions = selectors.model_actions(model, job)
+    points = selectors.chart_points(job) if job else []
     context = {
         "nav": "models",
         "model": model,
@@ -58,7 +59,8 @@ def _page(request: HttpRequest, model: RacingModel, evaluate_form: EvaluateForm 
         "hyperparameter_rows": hyperparameter_rows(model),
         "job": job,
         "jobs_ahead": services.jobs_ahead(job),
-        "chart_points": selectors.chart_points(job) if job else [],
+        "chart_points": points,
+        "clean_streak": selectors.clean_streak(points),
         "can_start": actions.can_train,
         "can_evaluate": actions.can_evaluate,
         "can_clone": actions.can_clone,

@@ -88,10 +88,23 @@
       videoCard.classList.add("live");
     };
 
+    // "Stop when ready": evaluations in a row at 100 % (every lap complete), as the loop counts.
+    const streakCell = document.getElementById("ready-streak");
+    const counted = new Set();
+    const countStreak = (p) => {
+      if (!streakCell || !p || counted.has(p.iteration)) return;
+      if (counted.size === 0) streakCell.dataset.streak = "0";  // the snapshot recounts from its first point
+      counted.add(p.iteration);
+      const streak = p.eval_progress >= 100 ? Number(streakCell.dataset.streak) + 1 : 0;
+      streakCell.dataset.streak = String(streak);
+      streakCell.textContent = `${streak} of ${streakCell.dataset.needed}`;
+    };
+
     if (training.active) {
       openSocket(`/ws/training/${training.id}/`, {
         snapshot: (m) => {
           (m.points || []).forEach((p) => chart && chart.add(p));
+          (m.points || []).forEach(countStreak);
           document.getElementById("iterations").textContent = chart ? chart.points.length : 0;
           clock = { elapsed: m.elapsed_s, at: performance.now(), running: !FINISHED.includes(m.status) && m.status !== "QUEUED" };
           setStatus(document.getElementById("job-status"), m.status);
@@ -99,6 +112,7 @@
         },
         metrics: (m) => {
           if (chart) chart.add(m.point);
+          countStreak(m.point);
           document.getElementById("iterations").textContent = chart ? chart.points.length : 0;
         },
         frame: (m) => {

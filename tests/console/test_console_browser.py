@@ -134,6 +134,8 @@ def test_sign_up_create_train_watch_stop_evaluate_download_clone_delete(page, we
         "data-points", re.compile(r"^[1-9]\d*$"), timeout=240_000
     )
     assert page.evaluate("window.__sameDocument === true"), "the page reloaded"
+    # "Stop when ready": the live count of evaluations in a row at 100 % (a number, not NaN)
+    expect(page.locator("#ready-streak")).to_have_text(re.compile(r"^\d+ of 20$"))
     shot(page, "04-training-chart", "#training")
 
     stop = page.locator("#stop-training")

@@ -13,7 +13,8 @@ from django.utils import timezone
 
 from tests.conftest import PASSWORD
 from tests.console.conftest import REWARD, make_model
-from training.models import JobStatus, RacingModel, TrainingJob
+from training.models import IterationMetric, JobStatus, RacingModel, TrainingJob
+from training.selectors import clean_streak
 from training.services import rewards
 
 pytestmark = pytest.mark.django_db
@@ -348,8 +349,9 @@ def test_evaluate_in_another_race_with_its_settings(alice, alice_client, store_d
     assert job.race_config["bot_speed"] == 1.5
 
 
-def test_stop_when_ready_is_set_shown_kept_by_a_clone_and_checked(alice, alice_client,
-                                                                   store_dir) -> None:  # fmt: skip
+def test_stop_when_ready_is_set_shown_kept_by_a_clone_and_checked(
+    alice, alice_client, store_dir
+) -> None:
     rewards.reward_validation_remember(
         user_id=alice.pk, source=REWARD, track_id="racecraft_oval", direction="native"
     )
@@ -384,7 +386,26 @@ def test_a_job_that_ended_ready_says_so(alice_model, alice_client) -> None:
                                status=JobStatus.COMPLETED, stopped_by="ready", iterations=12,
                                best_iteration=12, started_at=now, finished_at=now)  # fmt: skip
     page = alice_client.get(f"/models/{alice_model.pk}/").content.decode()
-    assert re.search(r'id="job-stop-condition">60 min, or when ready: 3 evaluations in a row '
-                     r"complete every lap<", page)  # fmt: skip
-    assert re.search(r'id="job-stopped-by">Ready: its evaluations completed every lap \(3 in a '
-                     r"row; best checkpoint: iteration 12\)<", page)  # fmt: skip
+    assert re.search(r'id="job-stop-condition" title="60 min, or when ready: 3 evaluations in a '
+                     r'row complete every lap">60 min or ready \(3 in a row\)<', page)  # fmt: skip
+    ended = (
+        'id="job-stopped-by" title="3 evaluations in a row completed every lap; iteration 12 '
+        'is the best checkpoint">Ready at iteration 12<'
+    )
+    assert ended in page
+    assert re.search(r'id="ready-streak" data-needed="3" data-streak="0">0 of 3<', page)
+
+
+def test_the_ready_streak_counts_the_latest_evaluations_at_100_percent(
+    alice_model, alice_client
+) -> None:
+    job = TrainingJob.objects.create(model=alice_model, max_minutes=60, stop_when_ready=5,
+                                     status=JobStatus.IN_PROGRESS)  # fmt: skip
+    for i, progress in enumerate([100.0, 100.0, 40.0, 100.0, 100.0], start=1):
+        IterationMetric.objects.create(job=job, iteration=i, episodes=4, steps=100,
+                                       total_steps=100 * i, train_reward=1.0, train_progress=50.0,
+                                       eval_progress=progress, elapsed_s=10.0 * i)  # fmt: skip
+    page = alice_client.get(f"/models/{alice_model.pk}/").content.decode()
+    assert re.search(r'id="ready-streak" data-needed="5" data-streak="2">2 of 5<', page)
+    assert clean_streak([]) == 0
+    assert clean_streak([{"eval_progress": 100.0}, {"eval_progress": 99.99}]) == 0
