@@ -108,21 +108,30 @@ def test_the_broadcast_shows_the_tv_camera_map_pips_and_the_html_tower(browser, 
         page.wait_for_timeout(250)
         later = np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB"))
     assert min(best) > 15, list(zip(colours, best, strict=True))
-    # Each racer's camera: gray pictures under the PiP names.
-    labels = page.eval_on_selector_all(".tv-pip-label", "ls => ls.map(l => { const r = "
-                                       "l.getBoundingClientRect(); return [r.left, r.bottom, "
-                                       "r.width]; })")  # fmt: skip
-    assert len(labels) == 4
-    detailed = grays = 0
-    for left, bottom, width in labels:
-        pip = picture[int(bottom) + 10 : int(bottom) + 150, int(left) + 10 : int(left + width) - 10]
-        gray = np.abs(pip.astype(int) - pip.mean(axis=-1, keepdims=True))
-        # Gray (JPEG's colour bleeds only at the edges); a car that is out, or an overlay drawn
-        # over its corner at that moment, may tint one: most are the model's gray frame.
-        grays += np.percentile(gray, 99) < 30
-        detailed += pip.std() > 5  # a car nose to a box sees one flat gray: not every PiP
-    assert grays >= 2
-    assert detailed >= 2
+    # Each racer's camera: gray pictures under the PiP names. Gray (JPEG's colour bleeds only at
+    # the edges); a car that is out, or an overlay drawn over its corner at that moment, may
+    # tint one; and on a loaded machine the labels and the pictures under them may be a moment
+    # apart (a CI run caught none of the four gray): most PiPs show the model's gray frame in
+    # this picture or one of the next few, measured under the labels as they are then.
+    grays, detailed = [False] * 4, [False] * 4
+    later = picture
+    for _ in range(20):
+        labels = page.eval_on_selector_all(".tv-pip-label", "ls => ls.map(l => { const r = "
+                                           "l.getBoundingClientRect(); return [r.left, r.bottom, "
+                                           "r.width]; })")  # fmt: skip
+        assert len(labels) == 4
+        for i, (left, bottom, width) in enumerate(labels):
+            top, right = int(bottom) + 10, int(left + width) - 10
+            pip = later[top : top + 140, int(left) + 10 : right]
+            gray = np.abs(pip.astype(int) - pip.mean(axis=-1, keepdims=True))
+            grays[i] = grays[i] or bool(np.percentile(gray, 99) < 30)
+            detailed[i] = detailed[i] or bool(pip.std() > 5)  # a car nose to a box: flat gray
+        if sum(grays) >= 2 and sum(detailed) >= 2:
+            break
+        page.wait_for_timeout(250)
+        later = np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB"))
+    assert sum(grays) >= 2, (grays, labels)
+    assert sum(detailed) >= 2, (detailed, labels)
     assert page.locator("[data-tower]").is_visible()
     assert page.locator("[data-board]").is_hidden()  # the leaderboard waits for the race's end
 
