@@ -111,6 +111,20 @@ class BucketImportForm(forms.Form):
     secure = forms.BooleanField(label="Use HTTPS", required=False)
 
 
+def stop_when_ready_field() -> forms.IntegerField:
+    """The "stop when ready" stop condition, as the create and clone pages ask for it (empty:
+    off)."""
+    return forms.IntegerField(
+        label="Stop when ready (evaluations in a row)", min_value=0, max_value=20, initial=0,
+        required=False,
+        help_text=(
+            "Training also stops once this many evaluations in a row complete every lap, and "
+            "the model keeps the checkpoint that completed them: 0 to 20, 0 for the time "
+            "limit alone."
+        ),
+    )  # fmt: skip
+
+
 class CloneForm(forms.Form):
     """What a clone may change (DeepRacer): name, track, reward function, stop condition."""
 
@@ -124,15 +138,7 @@ class CloneForm(forms.Form):
         error_messages={"required": "Write a reward function."},
     )
     max_minutes = forms.IntegerField(label="Maximum time (minutes)", min_value=1, max_value=1440)
-    stop_when_ready = forms.IntegerField(
-        label="Stop when ready (evaluations in a row)", min_value=0, max_value=20, initial=0,
-        required=False,
-        help_text=(
-            "Training also stops once this many evaluations in a row complete every lap, and "
-            "the model keeps the checkpoint that completed them: 0 to 20, 0 for the time "
-            "limit alone."
-        ),
-    )  # fmt: skip
+    stop_when_ready = stop_when_ready_field()
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)

@@ -15,7 +15,7 @@ from django import forms
 from django.core.validators import RegexValidator
 
 from console import tracks
-from console.forms import add_service_error
+from console.forms import add_service_error, stop_when_ready_field
 from console.race_form import RaceSettingsForm
 from racing.actions import (
     DEFAULT_DISCRETE,
@@ -191,15 +191,7 @@ class ModelCreateForm(RaceSettingsForm):
         label="Maximum time (minutes)", min_value=1, max_value=1440, initial=60,
         help_text="Training stops after this many minutes: 1 to 1440 (24 h).",
     )  # fmt: skip
-    stop_when_ready = forms.IntegerField(
-        label="Stop when ready (evaluations in a row)", min_value=0, max_value=20, initial=0,
-        required=False,
-        help_text=(
-            "Training also stops once this many evaluations in a row complete every lap, and "
-            "the model keeps the checkpoint that completed them: 0 to 20, 0 for the time "
-            "limit alone."
-        ),
-    )  # fmt: skip
+    stop_when_ready = stop_when_ready_field()
 
     def __init__(self, *args: Any, action_rows: list[tuple[str, str]] | None = None,
                  **kwargs: Any) -> None:  # fmt: skip
