@@ -33,6 +33,10 @@ START_TIMEOUT_S = 90.0
 """How long a child process may take to answer (worker ping, daphne port) before the test fails."""
 STOP_TIMEOUT_S = 30.0
 """How long a child process may take to exit after SIGTERM before it is killed."""
+DAPHNE_STOP_TIMEOUT_S = 5.0
+"""daphne's: it exits only once the views already queued have run, one at a time in its sync
+thread, and a closed Tracks page or wizard can leave dozens of track previews queued (each test
+that opened one waited the whole 30 s for the kill). A test server has nothing to save."""
 
 CHROMIUM_ENV = "RACECRAFT_TEST_CHROMIUM"
 CHROMIUM_DEFAULT = "/usr/bin/chromium"
@@ -102,11 +106,11 @@ class ChildProcess:
         return self.log_path.read_text() if self.log_path.exists() else ""
 
 
-def stop_child(popen: subprocess.Popen) -> None:
-    """SIGTERM, then SIGKILL after ``STOP_TIMEOUT_S``; reaped either way."""
+def stop_child(popen: subprocess.Popen, timeout_s: float = STOP_TIMEOUT_S) -> None:
+    """SIGTERM, then SIGKILL after ``timeout_s``; reaped either way."""
     popen.terminate()
     try:
-        popen.wait(timeout=STOP_TIMEOUT_S)
+        popen.wait(timeout=timeout_s)
     except subprocess.TimeoutExpired:
         popen.kill()
         popen.wait()
@@ -121,6 +125,7 @@ def _running(
     ready: Callable[[], bool],
     what: str,
     url: str = "",
+    stop_timeout_s: float = STOP_TIMEOUT_S,
 ) -> Iterator[ChildProcess]:
     """Start ``command`` in the repository root, wait until ``ready()``, stop it on exit."""
     with open(log_path, "w") as log:
@@ -138,7 +143,7 @@ def _running(
                 time.sleep(0.2)
             yield child
         finally:
-            stop_child(popen)
+            stop_child(popen, stop_timeout_s)
 
 
 def celery_worker_process(
@@ -183,6 +188,7 @@ def daphne_process(*, env: dict[str, str], log_path: Path) -> AbstractContextMan
         ready=listens,
         what="daphne",
         url=f"http://127.0.0.1:{port}",
+        stop_timeout_s=DAPHNE_STOP_TIMEOUT_S,
     )
 
 
