@@ -59,6 +59,9 @@ class TrainingConfig:
     """Stop once this many evaluations in a row have completed every lap (0: off; the time
     limit holds either way). The iteration that completes the streak becomes the best one,
     and the run ends ``"ready"``."""
+    clean_streak: int = 0
+    """Evaluations in a row that completed every lap before this run (a job resumed after its
+    worker was lost: the latest of its recorded iterations); ``stop_when_ready`` counts on."""
     reward_source: str | None = None
     reward_function: Callable[[dict], float] | None = None
     num_envs: int = 8
@@ -193,7 +196,7 @@ class TrainingLoop:
         self.total_steps = 0
         self.best_progress = -1.0 if config.best_score is None else float(config.best_score)
         self.best_iteration: int | None = None
-        self.clean_streak = 0
+        self.clean_streak = max(0, int(config.clean_streak))
         """Evaluations in a row, up to the latest, that completed every lap."""
         set_torch_threads(config.torch_threads)
         device = resolve_device(config.device)  # before any process starts: fail fast

@@ -16,7 +16,7 @@ from django.conf import settings
 from django.db import transaction
 
 from racing.rules import STATUS_LABELS, Status
-from training import live, services
+from training import live, selectors, services
 from training.interchange.logbook import LoggedIteration, TrainingLog
 from training.models import EpisodeMetric, IterationMetric, RacingModel, TrainingJob
 from training.rl.algorithms import DeviceError
@@ -248,6 +248,15 @@ def _initial_checkpoint(
     return checkpoint, None, "started from the imported model's checkpoint"
 
 
+def _resumed_streak(job: TrainingJob) -> int:
+    """A retried job's "stop when ready" count so far: its latest recorded iterations in a row
+    whose evaluation completed every lap (as its page shows it). 0 for a job that trains for
+    the first time or does not stop when ready: another job of the model starts its own."""
+    if not job.stop_when_ready or not job.iterations:
+        return 0
+    return selectors.clean_streak(selectors.chart_points(job))
+
+
 def run_training_job(job_id: int, worker: str = "", task_id: str = "") -> str:
     """Claim and run the fairest queued training job for the task ``task_id`` sent for
     ``job_id`` (:mod:`training.services.job_queue`); returns ``"completed"``, ``"failed"``,
@@ -260,6 +269,9 @@ def run_training_job(job_id: int, worker: str = "", task_id: str = "") -> str:
     hooks = JobHooks(job)
     try:
         checkpoint, best_score, started_from = _initial_checkpoint(job, model)
+        streak = _resumed_streak(job)
+        if streak:
+            started_from += f"; ready streak {streak} of {job.stop_when_ready} carried on"
         services.job_resumed_from(job=job, description=started_from)
         # A resumed job trains for the time it has left.
         max_minutes = max(0.5, job.max_minutes - hooks._elapsed_offset / 60)
@@ -270,6 +282,7 @@ def run_training_job(job_id: int, worker: str = "", task_id: str = "") -> str:
             hyperparameters=parse_hyperparameters(model.hyperparameters, model.algorithm),
             max_minutes=max_minutes,
             stop_when_ready=job.stop_when_ready,
+            clean_streak=streak,
             reward_source=model.reward_function,
             seed=model.seed,
             initial_checkpoint=checkpoint,

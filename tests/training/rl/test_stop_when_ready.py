@@ -30,7 +30,8 @@ class Recorder(TrainingHooks):
         return len(self.results) >= self.limit  # the user's stop, so that no test runs on
 
 
-def run(monkeypatch, outcomes: list[EvaluationOutcome], *, ready: int, best_score=None):
+def run(monkeypatch, outcomes: list[EvaluationOutcome], *, ready: int, best_score=None,
+        streak: int = 0):  # fmt: skip
     """The loop with a source whose evaluations are ``outcomes`` in turn (the user stops it
     after the last), and a model whose update does nothing."""
     script = iter(outcomes)
@@ -72,7 +73,8 @@ def run(monkeypatch, outcomes: list[EvaluationOutcome], *, ready: int, best_scor
     monkeypatch.setattr(runner, "build_model", lambda *args, **kwargs: Model())
     hooks = Recorder(limit=len(outcomes))
     config = TrainingConfig(spec=EnvSpec(track="racecraft_oval"), rollouts=Backend(),
-                            stop_when_ready=ready, best_score=best_score)  # fmt: skip
+                            stop_when_ready=ready, best_score=best_score,
+                            clean_streak=streak)  # fmt: skip
     return runner.train(config, hooks), hooks.results
 
 
@@ -110,3 +112,12 @@ def test_a_resumed_runs_best_gives_way_to_the_ready_iteration(monkeypatch):
     summary, results = run(monkeypatch, [CLEAN, CLEAN], ready=2, best_score=100.0)
     assert summary.stopped_by == "ready"
     assert [r.best for r in results] == [False, True]
+
+
+def test_a_resumed_job_counts_on_from_its_streak(monkeypatch):
+    """A job retried after its worker was lost, two clean evaluations into a streak of 3:
+    its first clean evaluation completes it; a failed one starts the count again."""
+    summary, results = run(monkeypatch, [CLEAN, CLEAN], ready=3, streak=2)
+    assert summary.stopped_by == "ready" and len(results) == 1 and results[0].best
+    summary, results = run(monkeypatch, [ONE_OFF, CLEAN, CLEAN], ready=3, streak=2)
+    assert summary.stopped_by == "user" and len(results) == 3
