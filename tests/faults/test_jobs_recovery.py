@@ -65,8 +65,8 @@ def test_a_failed_model_trained_again_resumes_from_its_last_checkpoint():
     model.status = RacingModel.Status.ERROR
     model.save()
     job = services.training_start(model=model, user=alice, enqueue=False)
-    checkpoint, best, words = _initial_checkpoint(job, model)
-    assert checkpoint == b"LAST" and best == pytest.approx(43.25)
+    checkpoint, best, words, streak = _initial_checkpoint(job, model)
+    assert checkpoint == b"LAST" and best == pytest.approx(43.25) and streak == 0
     assert f"job #{failed.pk}'s last checkpoint (iteration 7)" in words
     assert "best so far 43.2% evaluation progress" in words and "kept unless beaten" in words
 
@@ -76,15 +76,15 @@ def test_new_and_cloned_models_say_where_they_start():
     alice = _user("alice")
     fresh = _model(alice)
     job = services.training_start(model=fresh, user=alice, enqueue=False)
-    assert _initial_checkpoint(job, fresh) == (None, None, "started from a new network")
+    assert _initial_checkpoint(job, fresh) == (None, None, "started from a new network", 0)
     get_store().put_bytes(keys_for(fresh.pk).best, b"PARENT")
     fresh.has_checkpoint = True
     fresh.save()
     TrainingJob.objects.filter(pk=job.pk).update(status=JobStatus.COMPLETED, iterations=2)
     clone = services.model_clone(model=fresh, owner=alice, name="c1")
     job = services.training_start(model=clone, user=alice, enqueue=False)
-    checkpoint, best, words = _initial_checkpoint(job, clone)
-    assert checkpoint == b"PARENT" and best is None
+    checkpoint, best, words, streak = _initial_checkpoint(job, clone)
+    assert checkpoint == b"PARENT" and best is None and streak == 0
     assert words == f"started from the checkpoint of model #{fresh.pk}"
 
 

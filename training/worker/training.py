@@ -212,13 +212,15 @@ _STATUSES = {s.value for s in Status}
 
 def _initial_checkpoint(
     job: TrainingJob, model: RacingModel
-) -> tuple[bytes | None, float | None, str]:
-    """What the job starts from: ``(checkpoint, best score so far, the same in words)``.
+) -> tuple[bytes | None, float | None, str, int]:
+    """What the job starts from: ``(checkpoint, best score so far, the same in words, "stop
+    when ready" streak so far)``.
 
     A model trained before (a retried or restarted job, or a failed model trained again)
     resumes from its last checkpoint and keeps its best one unless an iteration beats the best
-    evaluation progress so far; a clone or an imported model starts from the checkpoint it was
-    given; a new model from a fresh network."""
+    evaluation progress so far; a job that resumes its own last checkpoint (its worker was
+    lost) also counts on from its streak; a clone or an imported model starts from the
+    checkpoint it was given; a new model from a fresh network."""
     store, keys = get_store(), keys_for(model.pk)
     trained = TrainingJob.objects.filter(model=model, iterations__gt=0)
     last_job = trained.order_by("-started_at", "-pk").first()
@@ -230,29 +232,32 @@ def _initial_checkpoint(
         if checkpoint is not None:
             best_job = trained.filter(best_iteration__isnull=False)
             best_job = best_job.order_by("-best_eval_progress", "-pk").first()
-            where = "its own" if last_job.pk == job.pk else f"job #{last_job.pk}'s"
+            own = last_job.pk == job.pk
+            where = "its own" if own else f"job #{last_job.pk}'s"
             text = f"resumed from {where} last checkpoint (iteration {last_job.iterations})"
-            if best_job is None:
-                return checkpoint, None, text
-            text += (
-                f"; best so far {best_job.best_eval_progress:.1f}% evaluation progress (job "
-                f"#{best_job.pk}, iteration {best_job.best_iteration}), kept unless beaten"
-            )
-            return checkpoint, best_job.best_eval_progress, text
+            streak = _streak_so_far(job) if own else 0
+            best = None if best_job is None else best_job.best_eval_progress
+            if best_job is not None:
+                text += (
+                    f"; best so far {best_job.best_eval_progress:.1f}% evaluation progress (job "
+                    f"#{best_job.pk}, iteration {best_job.best_iteration}), kept unless beaten"
+                )
+            if streak:
+                text += f"; ready streak {streak} of {job.stop_when_ready} carried on"
+            return checkpoint, best, text, streak
     try:
         checkpoint = store.get_bytes(keys.checkpoint("initial"))
     except ObjectNotFound:
-        return None, None, "started from a new network"
+        return None, None, "started from a new network", 0
     if model.parent_id is not None:
-        return checkpoint, None, f"started from the checkpoint of model #{model.parent_id}"
-    return checkpoint, None, "started from the imported model's checkpoint"
+        return checkpoint, None, f"started from the checkpoint of model #{model.parent_id}", 0
+    return checkpoint, None, "started from the imported model's checkpoint", 0
 
 
-def _resumed_streak(job: TrainingJob) -> int:
-    """A retried job's "stop when ready" count so far: its latest recorded iterations in a row
-    whose evaluation completed every lap (as its page shows it). 0 for a job that trains for
-    the first time or does not stop when ready: another job of the model starts its own."""
-    if not job.stop_when_ready or not job.iterations:
+def _streak_so_far(job: TrainingJob) -> int:
+    """A job's "stop when ready" count so far: its latest recorded iterations in a row whose
+    evaluation completed every lap (as its page shows it); 0 when it does not stop when ready."""
+    if not job.stop_when_ready:
         return 0
     return selectors.clean_streak(selectors.chart_points(job))
 
@@ -268,10 +273,7 @@ def run_training_job(job_id: int, worker: str = "", task_id: str = "") -> str:
     model = job.model
     hooks = JobHooks(job)
     try:
-        checkpoint, best_score, started_from = _initial_checkpoint(job, model)
-        streak = _resumed_streak(job)
-        if streak:
-            started_from += f"; ready streak {streak} of {job.stop_when_ready} carried on"
+        checkpoint, best_score, started_from, streak = _initial_checkpoint(job, model)
         services.job_resumed_from(job=job, description=started_from)
         # A resumed job trains for the time it has left.
         max_minutes = max(0.5, job.max_minutes - hooks._elapsed_offset / 60)
