@@ -29,9 +29,8 @@ from console.launcher import EmbeddedRedis, Supervisor
 from console.redisconf import cache_settings, celery_settings
 from console.redisconf import channel_layers as channel_layers_setting
 
-# The real servers (Celery worker, daphne, moto S3, Chromium) for every test package, and the
-# longest test files first.
-pytest_plugins = ["tests.support", "tests.ordering"]
+# The real servers (Celery worker, daphne, moto S3, Chromium) for every test package.
+pytest_plugins = ["tests.support"]
 
 PASSWORD = "correct-horse-battery-9"
 """The characters' password (strong enough for Django's validators)."""
