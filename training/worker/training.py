@@ -236,8 +236,9 @@ def _initial_checkpoint(
             where = "its own" if own else f"job #{last_job.pk}'s"
             text = f"resumed from {where} last checkpoint (iteration {last_job.iterations})"
             streak = _streak_so_far(job) if own else 0
-            best = None if best_job is None else best_job.best_eval_progress
+            best = None
             if best_job is not None:
+                best = best_job.best_eval_progress
                 text += (
                     f"; best so far {best_job.best_eval_progress:.1f}% evaluation progress (job "
                     f"#{best_job.pk}, iteration {best_job.best_iteration}), kept unless beaten"
