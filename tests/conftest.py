@@ -29,8 +29,9 @@ from console.launcher import EmbeddedRedis, Supervisor
 from console.redisconf import cache_settings, celery_settings
 from console.redisconf import channel_layers as channel_layers_setting
 
-# The real servers (Celery worker, daphne, moto S3, Chromium) for every test package.
-pytest_plugins = ["tests.support"]
+# The real servers (Celery worker, daphne, moto S3, Chromium) for every test package, and a
+# test stuck with the GIL held ends its process instead of the run (tests/hang_guard.py).
+pytest_plugins = ["tests.support", "tests.hang_guard"]
 
 PASSWORD = "correct-horse-battery-9"
 """The characters' password (strong enough for Django's validators)."""
