@@ -254,6 +254,20 @@ class CarSim:
         c.stepSimulation()
         return self.pose()
 
+    def snapshot(self) -> tuple[int, float]:
+        """The world's state now (the car's bodies and joints, the steering servo's angle), for
+        :meth:`restore`; :meth:`forget` frees it. A search that tries actions ahead uses it."""
+        return self.client.saveState(), self._steer
+
+    def restore(self, state: tuple[int, float]) -> None:
+        """Put the world back as it was at :meth:`snapshot`; the next steps then go as they
+        went from there (the same commands give the same poses)."""
+        self.client.restoreState(state[0])
+        self._steer = state[1]
+
+    def forget(self, state: tuple[int, float]) -> None:
+        self.client.removeState(state[0])
+
     def pose(self) -> Pose:
         c = self._pb
         (cx, cy, _), orn = c.getBasePositionAndOrientation(self.car)
