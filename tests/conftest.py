@@ -164,6 +164,18 @@ def _redis_settings(redis_url: str) -> Iterator[None]:
         setattr(settings, name, value)
 
 
+@pytest.fixture(autouse=True)
+def _fresh_channel_layer() -> Iterator[None]:
+    """Each test gets a channel layer of its own. channels_redis keeps a receive's bookkeeping
+    (a count of receivers, an asyncio lock, their event loop) on the layer object, which lives
+    as long as the process: a test whose consumer was still receiving when its event loop went
+    away leaves them behind, and the next tests' consumers, each in a loop of its own, failed
+    on that lock ("... is bound to a different event loop": a clean-clone CI run, two tests of
+    tests/leaderboard/test_spectator_revoke.py, the same lock in both)."""
+    yield
+    channel_layers.backends.clear()
+
+
 @pytest.fixture
 def alice(db):
     return get_user_model().objects.create_user("alice", password=PASSWORD)
