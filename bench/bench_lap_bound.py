@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import itertools
 import json
 import math
@@ -132,54 +133,36 @@ def try_ahead(env: RacingEnv, first: Sequence[int], horizon: int, lookahead: flo
 
 def search_drive(track: str, actions: list[dict], laps: int, depth: int, horizon: int,
                  lookahead: float, max_steps: int = 5000) -> Drive:  # fmt: skip
-    env = make_env(track, actions, laps)
-    env.reset(seed=0)
-    snapshots = Snapshots(env)
     sequences = list(itertools.product(range(len(actions)), repeat=depth))
-    chosen: list[int] = []
-    started = time.perf_counter()
-    info: dict = {"status": "prepare", "laps": []}
-    try:
-        for _ in range(max_steps):
-            here = snapshots.take()
-            scores = []
-            for sequence in sequences:
-                snapshots.back(here)
-                scores.append((try_ahead(env, sequence, horizon, lookahead), sequence[0]))
+
+    def search(env: RacingEnv) -> int:
+        snapshots = Snapshots(env)
+        here = snapshots.take()
+        scores = []
+        for sequence in sequences:
             snapshots.back(here)
-            snapshots.forget(here)
-            best = max(scores, key=lambda pair: pair[0])[1]  # the first of equals: stable
-            _, _, done, truncated, info = env.step(best)
-            chosen.append(best)
-            if done or truncated:
-                break
-    finally:
-        env.close()
+            scores.append((try_ahead(env, sequence, horizon, lookahead), sequence[0]))
+        snapshots.back(here)
+        snapshots.forget(here)
+        return max(scores, key=lambda pair: pair[0])[1]  # the first of equals: stable
+
     setting = f"search depth {depth}, horizon {horizon}, look-ahead {lookahead:g} m"
-    drive = Drive(setting, tuple(chosen), lap_times(info), info["status"],
-                  time.perf_counter() - started)  # fmt: skip
+    drive = policy_drive(track, actions, laps, setting, search, max_steps)
     return replay(drive, track, actions, laps)
 
 
 def replay(drive: Drive, track: str, actions: list[dict], laps: int) -> Drive:
     """The drive's actions from reset in a fresh env: its laps, and whether they agree."""
-    env = make_env(track, actions, laps)
-    env.reset(seed=0)
-    info: dict = {"status": "prepare", "laps": []}
-    try:
-        for action in drive.actions:
-            _, _, done, truncated, info = env.step(action)
-            if done or truncated:
-                break
-    finally:
-        env.close()
-    laps_again = lap_times(info)
-    return Drive(drive.setting, drive.actions, laps_again, info["status"], drive.seconds,
-                 replayed=laps_again == drive.laps)  # fmt: skip
+    taken = iter(drive.actions)
+    again = policy_drive(track, actions, laps, drive.setting, lambda env: next(taken),
+                         max_steps=len(drive.actions))  # fmt: skip
+    return dataclasses.replace(drive, laps=again.laps, status=again.status,
+                               replayed=again.laps == drive.laps)  # fmt: skip
 
 
 def policy_drive(track: str, actions: list[dict], laps: int, setting: str,
                  act: Callable[[RacingEnv], int], max_steps: int = 5000) -> Drive:  # fmt: skip
+    """``act`` drives ``laps`` laps from the start line, for at most ``max_steps`` steps."""
     env = make_env(track, actions, laps)
     env.reset(seed=0)
     chosen: list[int] = []

@@ -240,7 +240,7 @@ def _initial_checkpoint(
             if best_job is not None:
                 best = best_job.best_eval_progress
                 text += (
-                    f"; best so far {best_job.best_eval_progress:.1f}% evaluation progress (job "
+                    f"; best so far {best:.1f}% evaluation progress (job "
                     f"#{best_job.pk}, iteration {best_job.best_iteration}), kept unless beaten"
                 )
             if streak:
